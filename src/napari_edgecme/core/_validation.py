@@ -1,0 +1,124 @@
+"""Input validation, the float policy and the ``rng`` policy, in one place.
+
+Every public function of the engine funnels its inputs through these helpers, so
+that bad input fails early with one ``ValueError`` that names the parameter, what
+was expected and what came -- never with an exception from deep inside numpy.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+__all__ = [
+    "as_float_image",
+    "as_rng",
+    "check_choice",
+    "check_positive",
+    "float_dtype",
+]
+
+
+def float_dtype(dtype) -> np.dtype:
+    """Return the floating dtype the engine computes in for input ``dtype``.
+
+    float32 and float64 are kept; every other dtype (bool, integers, float16)
+    computes in float32. This is the single float policy of the engine.
+    """
+    dtype = np.dtype(dtype)
+    if dtype == np.float64:
+        return np.dtype(np.float64)
+    return np.dtype(np.float32)
+
+
+def as_float_image(image, name: str = "image", *, allow_rgb: bool = False,
+                   min_size: int = 2) -> np.ndarray:
+    """Validate an image and return it as floating point in [0, 1] (a new array).
+
+    Parameters
+    ----------
+    image : array_like of shape (M, N) or (M, N, 3)
+        Gray or (when ``allow_rgb``) RGB image. Integer images are scaled by the
+        maximum of their dtype (uint8 by 255, uint16 by 65535, ...); bool maps to
+        {0, 1}; floating images are taken as they are (expected in [0, 1]).
+    name : str
+        Parameter name used in error messages.
+    allow_rgb : bool
+        Accept a trailing channel axis of length 3 (RGB).
+    min_size : int
+        Smallest accepted number of rows and of columns.
+
+    Returns
+    -------
+    ndarray of float32 or float64
+        float64 input stays float64, everything else becomes float32.
+
+    Raises
+    ------
+    ValueError
+        On a wrong number of dimensions, too small a size, or non-finite values.
+    """
+    arr = np.asarray(image)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number)
+                                   or arr.dtype == np.bool_):
+        raise ValueError(f"{name} must be a numeric array; got dtype {arr.dtype}")
+    if np.iscomplexobj(arr):
+        raise ValueError(f"{name} must be real-valued; got dtype {arr.dtype}")
+    expected = "(rows, cols) or (rows, cols, 3)" if allow_rgb else "(rows, cols)"
+    ok_ndim = arr.ndim == 2 or (allow_rgb and arr.ndim == 3 and arr.shape[2] == 3)
+    if not ok_ndim:
+        raise ValueError(f"{name} must have shape {expected}; got shape {arr.shape}")
+    if arr.shape[0] < min_size or arr.shape[1] < min_size:
+        raise ValueError(
+            f"{name} must be at least {min_size}x{min_size} pixels; got {arr.shape[0]}x{arr.shape[1]}"
+        )
+    dtype = float_dtype(arr.dtype)
+    if arr.dtype == np.bool_:
+        out = arr.astype(dtype)
+    elif np.issubdtype(arr.dtype, np.integer):
+        info = np.iinfo(arr.dtype)
+        out = arr.astype(dtype)
+        if info.min < 0:
+            out = np.clip(out, 0, None)
+        out /= dtype.type(info.max)
+    else:
+        out = arr.astype(dtype, copy=True)
+        if not np.all(np.isfinite(out)):
+            bad = int(np.count_nonzero(~np.isfinite(out)))
+            raise ValueError(f"{name} contains {bad} non-finite values (NaN or inf)")
+    return out
+
+
+def as_rng(rng) -> np.random.Generator:
+    """Turn anything :func:`numpy.random.default_rng` accepts into a Generator."""
+    if isinstance(rng, np.random.Generator):
+        return rng
+    try:
+        return np.random.default_rng(rng)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"rng must be None, an int seed or a numpy Generator; got {rng!r}") from err
+
+
+def check_choice(value, name: str, choices) -> str:
+    """Return ``value`` if it is one of ``choices``, else raise a ValueError naming them."""
+    if not isinstance(value, str) or value not in choices:
+        listed = ", ".join(repr(c) for c in choices)
+        raise ValueError(f"{name} must be one of {listed}; got {value!r}")
+    return value
+
+
+def check_positive(value, name: str, *, integer: bool = False, allow_zero: bool = False,
+                   maximum=None):
+    """Return ``value`` if it is a finite positive number (an int when ``integer``)."""
+    kind = "integer" if integer else "number"
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be a positive {kind}; got {value!r}")
+    if integer and not float(value).is_integer():
+        raise ValueError(f"{name} must be a positive integer; got {value!r}")
+    if not np.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be a finite {kind} {bound}; got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{name} must be <= {maximum}; got {value!r}")
+    return int(value) if integer else float(value)

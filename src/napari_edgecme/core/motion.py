@@ -1,0 +1,413 @@
+"""``CameraMotion``: a motion density function (MDF) over camera poses, and its PSFs.
+
+A camera motion is a pose model, the intrinsics of the image it blurs, a set of
+poses and non-negative weights that sum to one (the MDF, paper Eq. 8). The local
+PSF at an image point is the MDF pushed through the displacements ``u = H_p x - x``
+(Eq. 9); :func:`psf_matrix` builds that push-forward as a sparse matrix, shared by
+:meth:`CameraMotion.psf` and the filter-flow operators.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from ._validation import check_choice, check_positive
+from .camera import (
+    MODELS,
+    Intrinsics,
+    check_poses,
+    displacements,
+    homographies,
+    poses_from_homographies,
+)
+
+__all__ = ["MOTION_FORMAT", "MOTION_VERSION", "CameraMotion", "psf_matrix", "psf_size_for"]
+
+MOTION_FORMAT = "edgecme-motion"
+MOTION_VERSION = 1
+
+
+def psf_size_for(disp: np.ndarray) -> int:
+    """Smallest odd PSF size holding displacements ``disp`` (..., 2) with bilinear splatting."""
+    reach = float(np.max(np.abs(disp))) if disp.size else 0.0
+    return 2 * math.ceil(reach - 1e-9) + 1
+
+
+def psf_matrix(disp: np.ndarray, size: int, dtype=np.float64) -> sp.csr_matrix:
+    """The sparse push-forward from pose weights to local PSFs (Eq. 9).
+
+    Parameters
+    ----------
+    disp : ndarray of shape (n_points, n_poses, 2)
+        Displacements ``(dx, dy)`` of each point under each pose
+        (:func:`~napari_edgecme.core.camera.displacements`).
+    size : int
+        Odd PSF side; the centre pixel is zero displacement, the row axis is ``dy``.
+    dtype : dtype
+        Of the matrix entries.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix of shape (n_points * size * size, n_poses)
+        ``(B @ w).reshape(n_points, size, size)`` are the PSFs of weights ``w``, each
+        splatted bilinearly so that it sums to ``w.sum()``.
+
+    Raises
+    ------
+    ValueError
+        If ``size`` is too small to hold every displacement.
+    """
+    n_points, n_poses, _ = disp.shape
+    half = (size - 1) // 2
+    need = psf_size_for(disp)
+    if size % 2 == 0 or size < need:
+        raise ValueError(f"PSF size must be odd and at least {need} to hold this motion; got {size}")
+    col = disp[..., 0] + half
+    row = disp[..., 1] + half
+    c0 = np.floor(col).astype(np.int64)
+    r0 = np.floor(row).astype(np.int64)
+    fc, fr = col - c0, row - r0
+    base = np.arange(n_points, dtype=np.int64)[:, None] * (size * size)
+    pose = np.broadcast_to(np.arange(n_poses, dtype=np.int64)[None, :], c0.shape)
+    rows, cols, vals = [], [], []
+    for dr, dc, wgt in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
+                        (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
+        rr, cc = r0 + dr, c0 + dc
+        keep = (wgt > 1e-9) & (rr >= 0) & (rr < size) & (cc >= 0) & (cc < size)
+        rows.append((base + rr * size + cc)[keep])
+        cols.append(pose[keep])
+        vals.append(wgt[keep])
+    mat = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                        shape=(n_points * size * size, n_poses), dtype=dtype)
+    return mat.tocsr()
+
+
+class CameraMotion:
+    """A camera motion: pose model, intrinsics, poses and MDF weights (paper Eq. 8).
+
+    Parameters
+    ----------
+    model : {"translation", "inplane", "rotation"}
+        Pose model (see :mod:`napari_edgecme.core.camera`).
+    intrinsics : Intrinsics
+        Of the image this motion blurs.
+    poses : array_like of shape (n, d)
+        Camera poses; ``d`` is 2 for ``translation`` and 3 otherwise.
+    weights : array_like of shape (n,)
+        Non-negative time fractions; normalised to sum to one.
+
+    Examples
+    --------
+    >>> from napari_edgecme import CameraMotion, Intrinsics
+    >>> cam = Intrinsics.from_image_shape((64, 64))
+    >>> m = CameraMotion.from_trajectory([[0, 0], [2, 0]], "translation", cam)
+    >>> m.psf([[32, 32]], size=5)[0, 2]
+    array([0. , 0. , 0.5, 0. , 0.5])
+    """
+
+    def __init__(self, model: str, intrinsics: Intrinsics, poses, weights):
+        self.model = check_choice(model, "model", MODELS)
+        if not isinstance(intrinsics, Intrinsics):
+            raise ValueError(f"intrinsics must be an Intrinsics; got {type(intrinsics).__name__}")
+        self.intrinsics = intrinsics
+        poses = check_poses(poses, model)
+        w = np.asarray(weights, dtype=float)
+        if w.ndim != 1 or w.shape[0] != poses.shape[0]:
+            raise ValueError(
+                f"weights must have shape ({poses.shape[0]},) to match poses; got shape {w.shape}"
+            )
+        if not np.all(np.isfinite(w)):
+            raise ValueError("weights must be finite; got NaN or inf")
+        if np.any(w < 0):
+            raise ValueError(f"weights must be >= 0; got minimum {w.min():g}")
+        total = w.sum()
+        if not total > 0:
+            raise ValueError("weights must not all be zero")
+        self.poses = poses
+        self.weights = w / total
+        self.poses.setflags(write=False)
+        self.weights.setflags(write=False)
+
+    # -- construction ---------------------------------------------------------------
+    @classmethod
+    def from_trajectory(cls, poses, model: str, intrinsics: Intrinsics) -> CameraMotion:
+        """A motion that spends equal time at each of ``poses`` (a gyroscope or ground-truth path)."""
+        poses = check_poses(poses, check_choice(model, "model", MODELS))
+        return cls(model, intrinsics, poses, np.ones(len(poses)))
+
+    @classmethod
+    def identity(cls, model: str, intrinsics: Intrinsics) -> CameraMotion:
+        """The motion of a camera that did not move (every PSF a delta)."""
+        d = 2 if model == "translation" else 3
+        return cls(model, intrinsics, np.zeros((1, d)), [1.0])
+
+    # -- geometry ----------------------------------------------------------------------
+    @property
+    def n_poses(self) -> int:
+        return len(self.weights)
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        return self.intrinsics.image_shape
+
+    def homographies(self) -> np.ndarray:
+        """Homographies of the poses, shape (n, 3, 3)."""
+        return homographies(self.model, self.intrinsics, self.poses)
+
+    def displacements(self, points) -> np.ndarray:
+        """Displacements ``(dx, dy)`` of ``points`` (n, 2) ``(row, col)`` per pose, (n, n_poses, 2)."""
+        return displacements(self.model, self.intrinsics, self.poses, _check_points(points))
+
+    def blur_extent(self, points=None) -> float:
+        """Largest displacement magnitude (px) from the centroid of the local PSF.
+
+        Evaluated at ``points`` (n, 2) or, by default, over a 5x5 grid covering the image.
+        """
+        if points is None:
+            points = _grid_points(self.image_shape, (5, 5))
+        d = self.displacements(points)
+        centre = np.einsum("npk,p->nk", d, self.weights)
+        return float(np.max(np.hypot(*(d - centre[:, None]).transpose(2, 0, 1))))
+
+    def psf_size(self, points=None) -> int:
+        """The PSF side that holds this motion at ``points`` (default: over the whole image)."""
+        if points is None:
+            points = _grid_points(self.image_shape, (9, 9))
+        return psf_size_for(self.displacements(points))
+
+    def psf(self, points, size: int | None = None) -> np.ndarray:
+        """Local PSFs at image points (Eq. 9).
+
+        Parameters
+        ----------
+        points : array_like of shape (n, 2)
+            Points as ``(row, col)``.
+        size : int, optional
+            Odd PSF side. Default: the smallest that holds the motion at these points.
+
+        Returns
+        -------
+        ndarray of shape (n, size, size)
+            Centre pixel = zero displacement, row axis = y displacement; bilinear
+            splatting; each PSF sums to one.
+        """
+        pts = _check_points(points)
+        disp = displacements(self.model, self.intrinsics, self.poses, pts)
+        if size is None:
+            size = psf_size_for(disp)
+        size = check_positive(size, "size", integer=True)
+        B = psf_matrix(disp, size)
+        return (B @ self.weights).reshape(len(pts), size, size)
+
+    def psf_field(self, grid=(5, 5), size: int | None = None, magnify: int | None = None
+                  ) -> np.ndarray:
+        """Local PSFs on a grid of points, drawn into one image aligned with the blurred image.
+
+        Parameters
+        ----------
+        grid : tuple of int
+            ``(rows, cols)`` of PSF sample points, evenly spread over the image.
+        size : int, optional
+            PSF side (default: enough for the whole image).
+        magnify : int, optional
+            Nearest-neighbour zoom of each PSF (default: as large as fits its cell).
+
+        Returns
+        -------
+        ndarray of shape image_shape, float32
+            Each PSF scaled to peak 1 and centred on its sample point; zero elsewhere.
+        """
+        grid = tuple(int(g) for g in grid)
+        if len(grid) != 2 or min(grid) < 1:
+            raise ValueError(f"grid must be two positive integers (rows, cols); got {grid!r}")
+        rows, cols = self.image_shape
+        points = _grid_points(self.image_shape, grid)
+        if size is None:
+            size = self.psf_size(points)
+        psfs = self.psf(points, size)
+        cell = min(rows / grid[0], cols / grid[1])
+        if magnify is None:
+            magnify = max(1, int(0.9 * cell // size))
+        magnify = check_positive(magnify, "magnify", integer=True)
+        out = np.zeros((rows, cols), np.float32)
+        for (r, c), k in zip(points, psfs, strict=True):
+            tile = np.kron(k / max(k.max(), 1e-12), np.ones((magnify, magnify)))
+            h = tile.shape[0] // 2
+            r0, c0 = round(r) - h, round(c) - h
+            rs0, cs0 = max(r0, 0), max(c0, 0)
+            rs1, cs1 = min(r0 + tile.shape[0], rows), min(c0 + tile.shape[1], cols)
+            if rs1 > rs0 and cs1 > cs0:
+                out[rs0:rs1, cs0:cs1] = np.maximum(
+                    out[rs0:rs1, cs0:cs1], tile[rs0 - r0:rs1 - r0, cs0 - c0:cs1 - c0])
+        return out
+
+    # -- transformations -----------------------------------------------------------
+    def centroid_pose(self) -> np.ndarray:
+        """The weighted mean pose (the MDF's centroid, paper claim 1), shape (d,)."""
+        return self.weights @ self.poses
+
+    def recentred(self) -> CameraMotion:
+        """The same blur up to a homography, with the centroid pose at the identity (claim 2).
+
+        Every pose ``H_j`` becomes ``H_j (H_c)^-1`` with ``H_c`` the centroid pose.
+        """
+        Hc = homographies(self.model, self.intrinsics, self.centroid_pose()[None])[0]
+        H = self.homographies() @ np.linalg.inv(Hc)
+        poses = poses_from_homographies(self.model, self.intrinsics, H)
+        return CameraMotion(self.model, self.intrinsics, poses, self.weights)
+
+    def rescale(self, image_shape) -> CameraMotion:
+        """This motion for the same camera at another resolution (e.g. estimated on a downscaled copy).
+
+        Parameters
+        ----------
+        image_shape : tuple of int
+            ``(rows, cols)`` of the target image (a trailing channel axis is ignored);
+            its aspect ratio must match.
+
+        Returns
+        -------
+        CameraMotion
+            Rotation angles are unchanged; translations scale with the image.
+        """
+        target = tuple(int(s) for s in tuple(image_shape)[:2])
+        if target == self.image_shape:
+            return self
+        intr = self.intrinsics.rescaled(target)
+        poses = self.poses.copy()
+        if self.model in ("translation", "inplane"):
+            r0, c0 = self.image_shape
+            poses[:, 0] *= target[1] / c0
+            poses[:, 1] *= target[0] / r0
+        return CameraMotion(self.model, intr, poses, self.weights)
+
+    def compact(self, threshold: float = 0.0) -> CameraMotion:
+        """Drop poses whose weight is at most ``threshold`` times the largest weight."""
+        keep = self.weights > threshold * self.weights.max()
+        return CameraMotion(self.model, self.intrinsics, self.poses[keep], self.weights[keep])
+
+    # -- files ---------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """The motion as the JSON-ready dict of the motion file (only non-zero weights)."""
+        keep = self.weights > 0
+        return {
+            "format": MOTION_FORMAT,
+            "version": MOTION_VERSION,
+            "model": self.model,
+            "intrinsics": self.intrinsics.to_dict(),
+            "poses": self.poses[keep].tolist(),
+            "weights": self.weights[keep].tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data) -> CameraMotion:
+        """Build a motion from the dict of a motion file; ``ValueError`` names what is wrong."""
+        if not isinstance(data, dict):
+            raise ValueError("motion file must hold a JSON object")
+        if data.get("format") != MOTION_FORMAT:
+            raise ValueError(
+                f"not an edgecme motion file: 'format' is {data.get('format')!r}, "
+                f"expected {MOTION_FORMAT!r}"
+            )
+        if data.get("version") != MOTION_VERSION:
+            raise ValueError(
+                f"unsupported motion file version {data.get('version')!r}; "
+                f"this program reads version {MOTION_VERSION}"
+            )
+        for key in ("model", "intrinsics", "poses", "weights"):
+            if key not in data:
+                raise ValueError(f"motion file has no {key!r} entry")
+        intr = data["intrinsics"]
+        if not isinstance(intr, dict) or not {"focal_px", "principal_point",
+                                              "image_shape"} <= set(intr):
+            raise ValueError(
+                "motion file 'intrinsics' must hold focal_px, principal_point and image_shape"
+            )
+        try:
+            intrinsics = Intrinsics(intr["focal_px"], tuple(intr["principal_point"]),
+                                    tuple(intr["image_shape"]))
+            poses = np.asarray(data["poses"], dtype=float)
+            weights = np.asarray(data["weights"], dtype=float)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"motion file is malformed: {_first_line(err)}") from None
+        model = data["model"]
+        if poses.size == 0:
+            raise ValueError("motion file has no poses")
+        return cls(model, intrinsics, poses, weights)
+
+    def save(self, path) -> None:
+        """Write the motion as JSON (DESIGN.md section 6), atomically (temporary file + rename)."""
+        path = Path(path)
+        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+        try:
+            with open(tmp, "w", encoding="utf-8") as fh:
+                json.dump(self.to_dict(), fh, indent=1)
+                fh.write("\n")
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+
+    @classmethod
+    def load(cls, path) -> CameraMotion:
+        """Read a motion file; any problem raises one ``ValueError`` line that names it."""
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ValueError(f"motion file not found: {path}") from None
+        except (OSError, UnicodeDecodeError) as err:
+            raise ValueError(f"cannot read motion file {path}: {_first_line(err)}") from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise ValueError(f"motion file {path} is not valid JSON: {err.msg} "
+                             f"(line {err.lineno})") from None
+        try:
+            return cls.from_dict(data)
+        except ValueError as err:
+            raise ValueError(f"{path}: {err}") from None
+
+    # -- comparison ------------------------------------------------------------------------
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, CameraMotion):
+            return NotImplemented
+        return (self.model == other.model and self.intrinsics == other.intrinsics
+                and np.array_equal(self.poses, other.poses)
+                and np.array_equal(self.weights, other.weights))
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        return (f"CameraMotion(model={self.model!r}, n_poses={self.n_poses}, "
+                f"image_shape={self.image_shape}, focal_px={self.intrinsics.focal_px:.1f})")
+
+
+def _first_line(err: Exception) -> str:
+    return str(err).splitlines()[0] if str(err) else type(err).__name__
+
+
+def _check_points(points) -> np.ndarray:
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim == 1 and pts.shape == (2,):
+        pts = pts[None]
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"points must have shape (n, 2) as (row, col); got shape {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("points must be finite")
+    return pts
+
+
+def _grid_points(shape, grid) -> np.ndarray:
+    """Centres of a ``grid`` of equal cells over an image of ``shape``, (rows*cols, 2) (row, col)."""
+    rows, cols = shape
+    r = (np.arange(grid[0]) + 0.5) * rows / grid[0] - 0.5
+    c = (np.arange(grid[1]) + 0.5) * cols / grid[1] - 0.5
+    rr, cc = np.meshgrid(r, c, indexing="ij")
+    return np.stack([rr.ravel(), cc.ravel()], -1)

@@ -1,0 +1,119 @@
+"""Claims about camera intrinsics, the three pose models and pose grids."""
+
+import numpy as np
+import pytest
+
+from napari_edgecme.core.camera import (
+    DEFAULT_FOCAL_35MM,
+    Intrinsics,
+    homographies,
+    pose_grid,
+    poses_from_homographies,
+    warp_points,
+)
+
+
+def move(model, intr, pose, xy):
+    return warp_points(homographies(model, intr, [pose]), np.array([xy], float))[0, 0]
+
+
+@pytest.fixture
+def intr():
+    return Intrinsics(1000.0, (50.0, 40.0), (81, 101))
+
+
+def test_default_focal_and_principal_point():
+    cam = Intrinsics.from_image_shape((600, 800))
+    assert cam.principal_point == (399.5, 299.5)
+    assert cam.focal_px == pytest.approx(DEFAULT_FOCAL_35MM / 36 * 800)
+    assert Intrinsics.from_image_shape((600, 800), focal_35mm=72).focal_px == pytest.approx(1600)
+    assert Intrinsics.from_image_shape((600, 800), focal_px=123.0).focal_px == 123.0
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_translation_moves_points_by_t(intr, sign):
+    assert move("translation", intr, (3 * sign, -2 * sign), (10, 20)) == pytest.approx(
+        (10 + 3 * sign, 20 - 2 * sign))
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_inplane_rotation_turns_x_axis_towards_rows(intr, sign):
+    # Rz = [[cos, -sin], [sin, cos]] in (x, y) about the principal point:
+    # +90 degrees takes the point one pixel right of the centre to one pixel below it
+    cx, cy = intr.principal_point
+    got = move("inplane", intr, (0, 0, sign * np.pi / 2), (cx + 1, cy))
+    assert got == pytest.approx((cx, cy + sign))
+
+
+def test_inplane_translates_after_rotating(intr):
+    cx, cy = intr.principal_point
+    assert move("inplane", intr, (5, -4, 0.3), (cx, cy)) == pytest.approx((cx + 5, cy - 4))
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_rotation_about_y_pans_right_and_about_x_tilts_up(intr, sign):
+    cx, cy = intr.principal_point
+    a = sign * 0.01
+    f = intr.focal_px
+    assert move("rotation", intr, (0, a, 0), (cx, cy)) == pytest.approx((cx + f * np.tan(a), cy))
+    assert move("rotation", intr, (a, 0, 0), (cx, cy)) == pytest.approx((cx, cy - f * np.tan(a)))
+
+
+def test_rotation_about_z_equals_inplane_rotation(intr):
+    xy = (90.0, 7.0)
+    assert move("rotation", intr, (0, 0, 0.05), xy) == pytest.approx(
+        move("inplane", intr, (0, 0, 0.05), xy))
+
+
+@pytest.mark.parametrize("model", ["translation", "inplane", "rotation"])
+def test_poses_round_trip_through_homographies(intr, model, rng):
+    d = 2 if model == "translation" else 3
+    poses = rng.normal(scale=0.02 if model == "rotation" else 3, size=(7, d))
+    if model == "inplane":
+        poses[:, 2] *= 0.01
+    back = poses_from_homographies(model, intr, homographies(model, intr, poses))
+    assert back == pytest.approx(poses, abs=1e-9)
+
+
+@pytest.mark.parametrize("model", ["translation", "inplane", "rotation"])
+def test_grid_step_moves_farthest_point_by_about_one_pixel(intr, model):
+    grid = pose_grid(model, intr, max_blur=21)
+    corners = intr.corners
+    for axis, step in enumerate(grid.steps):
+        pose = np.zeros(len(grid.steps))
+        pose[axis] = step
+        H = homographies(model, intr, [pose])
+        shift = np.linalg.norm(warp_points(H, corners)[0] - corners, axis=1).max()
+        assert 0.9 < shift < 1.1
+    assert all(c % 2 == 1 for c in grid.counts)
+    assert grid.counts[0] == 23  # +-10.5 px reached in whole steps: 11 each side
+
+
+def test_grid_coarsens_with_the_image(intr):
+    fine = pose_grid("rotation", intr, 21)
+    coarse = pose_grid("rotation", intr.rescaled((41, 51)), 21 / 2)
+    assert np.all(coarse.steps > 1.8 * fine.steps)
+    assert coarse.size < fine.size / 4
+
+
+def test_rescaled_rejects_another_aspect_ratio(intr):
+    with pytest.raises(ValueError, match="aspect ratio"):
+        intr.rescaled((81, 40))
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(focal_px=-1, principal_point=(0, 0), image_shape=(2, 2)), "focal_px"),
+    (dict(focal_px=np.nan, principal_point=(0, 0), image_shape=(2, 2)), "focal_px"),
+    (dict(focal_px=10, principal_point=(0,), image_shape=(2, 2)), "principal_point"),
+    (dict(focal_px=10, principal_point=(0, 0), image_shape=(0, 2)), "image_shape"),
+])
+def test_bad_intrinsics_name_the_parameter(bad, match):
+    with pytest.raises(ValueError, match=match):
+        Intrinsics(**bad)
+
+
+def test_unknown_model_is_named(intr):
+    with pytest.raises(ValueError, match="model must be one of"):
+        homographies("affine", intr, [[0, 0]])
+    with pytest.raises(ValueError, match=r"shape \(n, 3\)"):
+        homographies("rotation", intr, [[0, 0]])

@@ -1,0 +1,157 @@
+"""Claims about CameraMotion: validation, PSFs (Eq. 9), rescaling and the motion file."""
+
+import json
+
+import numpy as np
+import pytest
+
+from napari_edgecme import CameraMotion, Intrinsics
+from napari_edgecme.core.synth import densify_path, random_trajectory
+
+
+@pytest.fixture
+def cam():
+    return Intrinsics.from_image_shape((120, 160))
+
+
+def test_translation_psf_puts_weight_at_the_displacement(cam):
+    m = CameraMotion("translation", cam, [[0, 0], [2, 0], [0, -1]], [2, 1, 1])
+    k = m.psf([[60, 80]], size=7)[0]
+    assert k.sum() == pytest.approx(1)
+    assert k[3, 3] == pytest.approx(0.5)  # centre = zero displacement
+    assert k[3, 5] == pytest.approx(0.25)  # +2 in x -> two columns right
+    assert k[2, 3] == pytest.approx(0.25)  # -1 in y -> one row up (row axis = y)
+
+
+def test_subpixel_displacement_is_splatted_bilinearly(cam):
+    m = CameraMotion("translation", cam, [[0.25, 0.5]], [1])
+    k = m.psf([[0, 0]], size=3)[0]
+    np.testing.assert_allclose(k[1:, 1:], [[0.375, 0.125], [0.375, 0.125]])
+
+
+@pytest.mark.parametrize("model", ["inplane", "rotation"])
+def test_psfs_sum_to_one_and_vary_over_the_image(cam, model):
+    poses = random_trajectory(model, cam, 11, 20, roll=2.0, rng=3)
+    m = CameraMotion.from_trajectory(poses, model, cam)
+    pts = [[0, 0], [119, 159], [60, 80]]
+    k = m.psf(pts)
+    assert k.shape[1] == k.shape[2] and k.shape[1] % 2 == 1
+    assert k.sum(axis=(1, 2)) == pytest.approx(1)
+    assert np.abs(k[0] - k[1]).sum() > 0.1
+
+
+def test_psf_size_too_small_is_refused(cam):
+    m = CameraMotion("translation", cam, [[0, 0], [4, 0]], [1, 1])
+    with pytest.raises(ValueError, match="at least 9"):
+        m.psf([[0, 0]], size=5)
+
+
+def test_psf_field_draws_each_psf_at_its_point(cam):
+    m = CameraMotion("translation", cam, [[0, 0]], [1])
+    field = m.psf_field(grid=(2, 2), magnify=1)
+    assert field.shape == cam.image_shape and field.dtype == np.float32
+    assert np.count_nonzero(field) == 4
+    assert field.max() == 1
+
+
+def test_rescale_scales_translations_and_keeps_angles(cam):
+    small = Intrinsics.from_image_shape((60, 80))
+    poses = random_trajectory("inplane", small, 7, 12, rng=1)
+    m = CameraMotion.from_trajectory(poses, "inplane", small)
+    big = m.rescale((120, 160))
+    assert big.poses[:, :2] == pytest.approx(2 * m.poses[:, :2])
+    assert big.poses[:, 2] == pytest.approx(m.poses[:, 2])
+    r = CameraMotion.from_trajectory(random_trajectory("rotation", small, 7, 12, rng=1),
+                                     "rotation", small)
+    assert r.rescale((120, 160)).poses == pytest.approx(r.poses)
+    # displacements double at corresponding points
+    d_small = r.displacements([[10.5, 20.5]])
+    d_big = r.rescale((120, 160)).displacements([[21.5, 41.5]])
+    assert d_big == pytest.approx(2 * d_small, rel=1e-3, abs=1e-3)
+    with pytest.raises(ValueError, match="aspect ratio"):
+        m.rescale((120, 60))
+
+
+def test_recentred_moves_the_centroid_to_the_identity(cam):
+    poses = random_trajectory("rotation", cam, 9, 16, rng=2) + [0.001, -0.002, 0.0005]
+    m = densify_path(poses, "rotation", cam)
+    c = m.recentred()
+    assert np.abs(c.centroid_pose()).max() < 1e-6
+    # the shape of every PSF is unchanged (claim 2): only shifted. The bound allows for
+    # the bilinear splatting of a one-pixel-thin path at other sub-pixel offsets.
+    from napari_edgecme.core.metrics import psf_ncc
+    for a, b in zip(m.psf([[0, 0], [60, 80]], 31), c.psf([[0, 0], [60, 80]], 31), strict=True):
+        assert psf_ncc(a, b) > 0.95
+
+
+@pytest.mark.parametrize("model", ["translation", "inplane", "rotation"])
+def test_motion_file_round_trips(tmp_path, cam, model):
+    d = 2 if model == "translation" else 3
+    poses = random_trajectory(model, cam, 9, 10, rng=0)
+    m = CameraMotion(model, cam, poses, np.arange(1, 11, dtype=float))
+    path = tmp_path / "m.json"
+    m.save(path)
+    data = json.loads(path.read_text())
+    assert data["format"] == "edgecme-motion" and data["version"] == 1
+    assert set(data) == {"format", "version", "model", "intrinsics", "poses", "weights"}
+    assert len(data["poses"][0]) == d
+    back = CameraMotion.load(path)
+    assert back == m
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_only_nonzero_weights_are_stored(tmp_path, cam):
+    m = CameraMotion("translation", cam, [[0, 0], [1, 0]], [1, 0])
+    m.save(tmp_path / "m.json")
+    assert len(json.loads((tmp_path / "m.json").read_text())["weights"]) == 1
+
+
+GOOD = {"format": "edgecme-motion", "version": 1, "model": "translation",
+        "intrinsics": {"focal_px": 100.0, "principal_point": [9.5, 9.5], "image_shape": [20, 20]},
+        "poses": [[0.0, 0.0], [1.0, 0.0]], "weights": [0.5, 0.5]}
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"format": "other"}, "not an edgecme motion file"),
+    ({"version": 2}, "unsupported motion file version 2"),
+    ({"model": "affine"}, "model must be one of"),
+    ({"weights": [0.5, -0.5]}, "weights must be >= 0"),
+    ({"weights": [0.0, 0.0]}, "must not all be zero"),
+    ({"weights": [1.0]}, "weights must have shape"),
+    ({"poses": [[0.0], [1.0]]}, r"shape \(n, 2\)"),
+    ({"poses": [[0.0, "x"], [1.0, 0.0]]}, "malformed"),
+    ({"intrinsics": {"focal_px": 1}}, "intrinsics"),
+    ({"intrinsics": {"focal_px": -1, "principal_point": [0, 0], "image_shape": [2, 2]}},
+     "focal_px"),
+    ({"poses": []}, "no poses"),
+])
+def test_malformed_motion_files_give_one_line(tmp_path, change, match):
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps({**GOOD, **change}))
+    with pytest.raises(ValueError, match=match) as info:
+        CameraMotion.load(path)
+    assert "\n" not in str(info.value)
+
+
+def test_not_json_and_missing_file(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text("{nope")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        CameraMotion.load(path)
+    with pytest.raises(ValueError, match="not found"):
+        CameraMotion.load(tmp_path / "missing.json")
+    path.write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(ValueError, match="motion file"):
+        CameraMotion.load(path)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(weights=[np.nan, 1]), "finite"),
+    (dict(poses=[[np.inf, 0], [0, 0]]), "finite"),
+    (dict(weights=[-1, 2]), ">= 0"),
+])
+def test_bad_motion_arguments_name_the_parameter(cam, kwargs, match):
+    args = dict(model="translation", intrinsics=cam, poses=[[0, 0], [1, 0]], weights=[1, 1])
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        CameraMotion(**args)
