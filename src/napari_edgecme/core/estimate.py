@@ -1,0 +1,469 @@
+"""Camera-motion estimation: EpAlone (Eq. 19), Xu (L0, Eq. 21-22 with lambda_Ip = 0) and Xu+Ep.
+
+All three share one coarse-to-fine driver (paper Algorithm 1 run over an image
+pyramid with ratio ``1/sqrt(2)``):
+
+* the pose grid of each level has one-pixel steps at that level's resolution and
+  the level's share of ``max_blur`` (:func:`~.camera.pose_grid`);
+* the MDF found at a coarser level is carried to the next one by splatting its
+  poses onto the finer grid; the active pose set is its support dilated by one
+  grid step, so the problem stays small where the grid is fine;
+* every MDF update solves a non-negative L1 problem (:func:`~.lasso.nonneg_lasso`),
+  then drops weights below ``1/20`` of the largest, renormalises and re-centres the
+  MDF on the grid (claims 1-2: the result is defined up to a homography);
+* **EpAlone** minimises ``||M (T_w I_p - I_ep)||^2 + lambda_w ||w||_1`` (Eq. 19) --
+  no latent image;
+* **Xu** alternates the L0-gradient latent update (Eq. 21) and the gradient-domain
+  MDF update; **Xu+Ep** adds ``lambda_Ip`` times the edge-profile term (Eq. 22).
+  ``lambda_Ip = 0`` is exactly Xu.
+
+``iter_estimate_motion`` is the generator (progress records, cancellable);
+``estimate_motion`` drives it. ``deblur`` estimates and then deconvolves at full
+resolution.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from ._validation import as_float_image, check_choice, check_positive
+from .camera import MODELS, Intrinsics, PoseGrid, displacements, pose_grid
+from .lasso import nonneg_lasso
+from .deconv_prior import grad
+from .latent import l0_latent
+from .mdf import border_taper, edge_profile_term, gradient_term, psf_basis
+from .motion import CameraMotion, psf_size_for
+from .operators import PatchGrid
+from .progress import Progress, StopRequested, drive
+
+__all__ = [
+    "DEFAULTS",
+    "METHODS",
+    "EstimateInfo",
+    "MotionEstimate",
+    "ScaleRecord",
+    "default_max_blur",
+    "deblur",
+    "estimate_motion",
+    "iter_estimate_motion",
+]
+
+#: Estimation methods, by name (the names are API).
+METHODS = ("ep", "xu", "xu+ep")
+
+#: Default parameters. Costs are normalised by their data energy, so these mean the
+#: same at every scale and image size.
+DEFAULTS = {
+    "lambda_w": 2e-3,  # L1 weight on the MDF (Eqs. 19, 22)
+    "lambda_ip": 1.0,  # weight of the edge-profile term in Xu+Ep (Eq. 22)
+    "lambda_f": 2e-2,  # L0 weight of the latent update (Eq. 21), decays by 1/1.1 per iteration
+    "n_iter": 5,  # alternations per scale (Algorithm 1, n_max)
+    "max_side": 1024,  # estimate on a copy whose longer side is at most this
+    "min_profiles": 12,  # EpAlone needs at least this many edge profiles
+    "coarsest_blur": 5.0,  # pyramid stops when the blur is this small (pixels)
+}
+
+_PYRAMID_RATIO = 1.0 / math.sqrt(2.0)
+_WEIGHT_FLOOR = 1.0 / 20.0  # drop weights below this fraction of the largest (Whyte et al.)
+
+
+@dataclass
+class ScaleRecord:
+    """What happened at one pyramid level."""
+
+    level: int
+    shape: tuple[int, int]
+    max_blur: float
+    grid_size: int
+    active_poses: list[int] = field(default_factory=list)
+    costs: list[float] = field(default_factory=list)
+    lasso_iterations: list[int] = field(default_factory=list)
+
+    @property
+    def iterations(self) -> int:
+        return len(self.costs)
+
+
+@dataclass
+class EstimateInfo:
+    """Diagnostics of an estimation run (like ``scipy.optimize.OptimizeResult``)."""
+
+    method: str
+    model: str
+    max_blur: float
+    focal_px: float
+    working_scale: float
+    n_profiles: int = 0
+    scales: list[ScaleRecord] = field(default_factory=list)
+    seconds: float = 0.0
+    converged: bool = False
+    message: str = ""
+
+
+@dataclass
+class MotionEstimate:
+    """Result of :func:`estimate_motion`.
+
+    Attributes
+    ----------
+    motion : CameraMotion
+        The estimated motion, for the input image's own size, re-centred.
+    latent : ndarray of shape (h, w) or None
+        The last latent estimate at the working resolution (None for EpAlone).
+    profiles : EdgeProfiles or None
+        The edge profiles used (EpAlone, Xu+Ep), in input-image coordinates.
+    info : EstimateInfo
+    """
+
+    motion: CameraMotion
+    latent: np.ndarray | None
+    profiles: object | None
+    info: EstimateInfo
+
+
+def default_max_blur(shape) -> float:
+    """The blur extent assumed when none is given: 4% of the longer side, at least 15 px."""
+    return float(max(15, round(0.04 * max(shape[:2]))))
+
+
+def _luminance(img: np.ndarray) -> np.ndarray:
+    if img.ndim == 2:
+        return img
+    coeffs = np.array([0.2125, 0.7154, 0.0721], img.dtype)
+    return img @ coeffs
+
+
+def _resize(img: np.ndarray, shape) -> np.ndarray:
+    from skimage.transform import resize
+
+    if tuple(shape) == img.shape:
+        return img
+    return resize(img, shape, order=1, anti_aliasing=True, preserve_range=True).astype(img.dtype)
+
+
+def _pyramid(shape, max_blur: float, coarsest_blur: float) -> list[float]:
+    """Scales of the pyramid levels, coarse to fine (the last is 1).
+
+    Levels shrink by ``1/sqrt(2)`` until the blur is ``coarsest_blur`` pixels, but the
+    coarsest level keeps at least 32 pixels on its smaller side.
+    """
+    n = 1
+    if max_blur > coarsest_blur:
+        n = int(math.floor(math.log(coarsest_blur / max_blur) / math.log(_PYRAMID_RATIO))) + 1
+    if min(shape) > 32:
+        n = min(n, int(math.floor(math.log(32 / min(shape)) / math.log(_PYRAMID_RATIO))) + 1)
+    else:
+        n = 1
+    return [_PYRAMID_RATIO ** (n - 1 - i) for i in range(n)]
+
+
+class _Level:
+    """One pyramid level: the observation, its camera, pose grid and MDF terms."""
+
+    def __init__(self, index, blurred, intrinsics, model, max_blur):
+        self.index = index
+        self.blurred = blurred
+        self.shape = blurred.shape
+        self.intrinsics = intrinsics
+        self.model = model
+        self.max_blur = max_blur
+        self.grid: PoseGrid = pose_grid(model, intrinsics, max_blur)
+
+    def motion(self, weights_grid: np.ndarray) -> CameraMotion:
+        keep = weights_grid.ravel() > 0
+        return CameraMotion(self.model, self.intrinsics, self.grid.poses()[keep],
+                            weights_grid.ravel()[keep])
+
+    def patch_grid(self, poses) -> PatchGrid:
+        """Tiles for the MDF terms: a few per axis, each several PSFs wide."""
+        probe = PatchGrid(self.shape, 1, stride=max(self.shape))
+        corners = np.array([[0, 0], [0, self.shape[1] - 1], [self.shape[0] - 1, 0],
+                            [self.shape[0] - 1, self.shape[1] - 1]], float)
+        K = psf_size_for(displacements(self.model, self.intrinsics, poses,
+                                       np.vstack([probe.centres, corners])))
+        stride = int(max(2 * K, min(4 * K, 128, math.ceil(max(self.shape) / 3))))
+        return PatchGrid(self.shape, K, stride=stride)
+
+
+def _initial_weights(level: _Level, previous: CameraMotion | None) -> np.ndarray:
+    if previous is None:
+        w = np.zeros(level.grid.counts)
+        w[tuple(level.grid.half)] = 1.0
+        return w
+    moved = previous.rescale(level.shape)
+    w = level.grid.splat(moved.poses, moved.weights)
+    return w / w.sum()
+
+
+def _dilate(support: np.ndarray, steps: int = 1) -> np.ndarray:
+    structure = np.ones((3,) * support.ndim, bool)
+    return ndimage.binary_dilation(support, structure, iterations=steps)
+
+
+def _clean(weights: np.ndarray) -> np.ndarray:
+    """Drop weights below 1/20 of the largest, renormalise, re-centre on the grid."""
+    w = np.where(weights >= _WEIGHT_FLOOR * weights.max(), weights, 0.0)
+    w /= w.sum()
+    idx = np.indices(w.shape).reshape(w.ndim, -1)
+    centroid = idx @ w.ravel()
+    shift = np.round(np.asarray(w.shape) // 2 - centroid).astype(int)
+    if np.any(shift):
+        moved = np.zeros_like(w)
+        src = tuple(slice(max(0, -s), n - max(0, s)) for s, n in zip(shift, w.shape, strict=True))
+        dst = tuple(slice(max(0, s), n - max(0, -s)) for s, n in zip(shift, w.shape, strict=True))
+        moved[dst] = w[src]
+        if moved.sum() > 0:
+            w = moved / moved.sum()
+    return w
+
+
+def _check_lambda(value, name, default, allow_zero=False):
+    if value is None:
+        return default
+    return check_positive(value, name, allow_zero=allow_zero)
+
+
+def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
+                         max_blur: float | None = None, focal_px: float | None = None,
+                         profiles=None, *, lambda_w: float | None = None,
+                         lambda_ip: float | None = None, lambda_f: float | None = None,
+                         n_iter: int | None = None, max_side: int | None = None,
+                         preview: bool = False, rng=None):
+    """Estimate the camera motion of a blurred photo, yielding progress records.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        The blurred photo (any numeric dtype; RGB is estimated on luminance).
+    method : {"ep", "xu", "xu+ep"}
+        EpAlone (Eq. 19), Xu et al. L0 (the baseline) or Xu+Ep (Eq. 22).
+    model : {"translation", "inplane", "rotation"}
+        Pose model; ``"translation"`` is uniform (space-invariant) blind deblurring.
+    max_blur : float, optional
+        Largest blur extent to look for, in pixels of ``image`` (default
+        :func:`default_max_blur`).
+    focal_px : float, optional
+        Focal length in pixels of ``image`` (default: the 35 mm-equivalent default of
+        :class:`~.camera.Intrinsics`).
+    profiles : EdgeProfiles, optional
+        Edge profiles to use (e.g. picked by hand), in ``image`` coordinates; by
+        default they are extracted automatically (EpAlone, Xu+Ep).
+    lambda_w, lambda_ip, lambda_f : float, optional
+        Weights of Eqs. 19-22 (see :data:`DEFAULTS`); ``lambda_ip = 0`` is Xu.
+    n_iter : int, optional
+        Alternations per scale.
+    max_side : int, optional
+        Images larger than this are estimated on a downscaled copy (the motion is
+        returned for the full image).
+    preview : bool
+        Attach the current latent image to progress records (Xu, Xu+Ep).
+    rng : None, int or numpy.random.Generator
+        Seeds every random choice (edge-profile extraction); results are
+        deterministic for a given seed.
+
+    Yields
+    ------
+    Progress
+        ``stage="estimate"``; ``scale``/``n_scales``, ``iteration``, ``cost``.
+
+    Returns
+    -------
+    MotionEstimate
+    """
+    method = check_choice(method, "method", METHODS)
+    model = check_choice(model, "model", MODELS)
+    img = as_float_image(image, allow_rgb=True, min_size=8)
+    gray = _luminance(img)
+    shape = gray.shape
+    max_blur = default_max_blur(shape) if max_blur is None else check_positive(max_blur,
+                                                                               "max_blur")
+    if max_blur > min(shape) / 2:
+        raise ValueError(f"max_blur must be less than half the smaller image side "
+                         f"({min(shape) / 2:g} px); got {max_blur:g}")
+    if max_blur < 1:
+        raise ValueError(f"max_blur must be at least 1 pixel; got {max_blur:g}")
+    lambda_w = _check_lambda(lambda_w, "lambda_w", DEFAULTS["lambda_w"], allow_zero=True)
+    lambda_ip = _check_lambda(lambda_ip, "lambda_ip", DEFAULTS["lambda_ip"], allow_zero=True)
+    lambda_f = _check_lambda(lambda_f, "lambda_f", DEFAULTS["lambda_f"])
+    n_iter = DEFAULTS["n_iter"] if n_iter is None else check_positive(n_iter, "n_iter",
+                                                                      integer=True)
+    max_side = DEFAULTS["max_side"] if max_side is None else check_positive(
+        max_side, "max_side", integer=True)
+    if focal_px is not None:
+        focal_px = check_positive(focal_px, "focal_px")
+    if method == "xu":
+        lambda_ip = 0.0
+    t_start = time.perf_counter()
+
+    # -- working copy --------------------------------------------------------------
+    intr_full = Intrinsics.from_image_shape(shape, focal_px=focal_px)
+    work_scale = min(1.0, max_side / max(shape))
+    work_shape = tuple(max(8, round(s * work_scale)) for s in shape)
+    work = _resize(gray, work_shape)
+    intr_work = intr_full.rescaled(work_shape)
+    blur_work = max_blur * work_scale
+    info = EstimateInfo(method, model, max_blur, intr_full.focal_px, work_scale)
+
+    # -- edge profiles -------------------------------------------------------------
+    scales = _pyramid(work_shape, blur_work, DEFAULTS["coarsest_blur"])
+    total = len(scales) * n_iter + (1 if method != "xu" else 0)
+    step = 0
+    yield Progress("estimate", step, total, "preparing", n_scales=len(scales))
+    work_profiles = None
+    if method != "xu":
+        if profiles is None:
+            from .edges import extract_edge_profiles
+
+            work_profiles = extract_edge_profiles(work, blur_work, rng=rng)
+        else:
+            work_profiles = profiles.rescaled(work_scale) if work_scale != 1 else profiles
+        info.n_profiles = len(work_profiles)
+        need = DEFAULTS["min_profiles"]
+        if len(work_profiles) < need:
+            why = f" ({work_profiles.reason})" if getattr(work_profiles, "reason", "") else ""
+            if method == "ep":
+                raise ValueError(f"EpAlone needs at least {need} usable edge profiles; found "
+                                 f"{len(work_profiles)}{why}")
+            warnings.warn(f"only {len(work_profiles)} usable edge profiles (need {need}){why}; "
+                          "falling back to method 'xu'", UserWarning, stacklevel=2)
+            method, lambda_ip, work_profiles = "xu", 0.0, None
+            info.message = "fell back to 'xu': too few edge profiles; "
+            total -= 1
+        else:
+            step += 1
+            yield Progress("estimate", step, total, f"{len(work_profiles)} edge profiles",
+                           n_scales=len(scales))
+
+    # -- coarse to fine ------------------------------------------------------------
+    motion: CameraMotion | None = None
+    latent = None
+    stopped = False
+    try:
+        for li, s in enumerate(scales):
+            lshape = tuple(max(8, round(n * s)) for n in work_shape)
+            level = _Level(li, _resize(work, lshape), intr_work.rescaled(lshape), model,
+                           max(2.0, blur_work * s))
+            record = ScaleRecord(li + 1, lshape, level.max_blur, level.grid.size)
+            info.scales.append(record)
+            weights = _initial_weights(level, motion)
+            active = np.ones(level.grid.counts, bool) if motion is None else _dilate(
+                weights > 0)
+            ep_images = None
+            if work_profiles is not None and (method == "ep" or lambda_ip > 0):
+                ep_images = _edge_images(level, work_profiles, s)
+            lam_f = lambda_f
+            for it in range(n_iter):
+                if method != "ep":
+                    latent = l0_latent(level.blurred, level.motion(weights), lam_f)
+                    lam_f = max(lam_f / 1.1, 1e-4)
+                weights, cost, n_lasso = _mdf_step(level, weights, active, latent, ep_images,
+                                                   lambda_w, lambda_ip, method)
+                active = _dilate(weights > 0)
+                motion = level.motion(weights)
+                record.costs.append(cost)
+                record.active_poses.append(int(active.sum()))
+                record.lasso_iterations.append(n_lasso)
+                step += 1
+                yield Progress("estimate", step, total,
+                               f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{n_iter}",
+                               scale=li + 1, n_scales=len(scales), iteration=it + 1,
+                               cost=cost, preview=latent.copy() if preview and latent is not None
+                               else None)
+        info.converged = True
+        info.message += "completed all scales"
+    except StopRequested:
+        if motion is None:
+            raise
+        stopped = True
+        info.message += "stopped by callback; returning the estimate so far"
+
+    # -- result at the input's own size ----------------------------------------------
+    final = motion.compact().recentred().rescale(shape)
+    out_profiles = work_profiles
+    if out_profiles is not None and work_scale != 1:
+        out_profiles = profiles if profiles is not None else work_profiles.rescaled(
+            1.0 / work_scale)
+    info.seconds = time.perf_counter() - t_start
+    if stopped:
+        info.converged = False
+    return MotionEstimate(final, latent, out_profiles, info)
+
+
+def _edge_images(level: _Level, profiles, scale: float):
+    """``(I_p, I_ep, M)`` of Eq. 19 at this level (profiles in working coordinates)."""
+    from .prediction import edge_profile_image, prediction_image
+
+    i_p = prediction_image(profiles, level.shape, scale=scale)
+    i_ep, mask = edge_profile_image(level.blurred, profiles, scale=scale)
+    return i_p, i_ep, mask
+
+
+def _mdf_step(level: _Level, weights, active, latent, ep_images, lambda_w, lambda_ip, method):
+    """One MDF update on the active poses (Eq. 19 for EpAlone, Eq. 22 otherwise)."""
+    poses = level.grid.poses(active)
+    pgrid = level.patch_grid(poses)
+    basis = psf_basis(level.model, level.intrinsics, poses, pgrid)
+    terms = []
+    if method != "ep":
+        taper = border_taper(level.shape, pgrid.psf_size).astype(level.blurred.dtype)
+        f_grad = np.stack(grad(latent)) * taper
+        g_grad = np.stack(grad(level.blurred)) * taper
+        terms.append(gradient_term(f_grad, g_grad, pgrid, basis))
+    if ep_images is not None and (method == "ep" or lambda_ip > 0):
+        i_p, i_ep, mask = ep_images
+        weight = 1.0 if method == "ep" else lambda_ip
+        terms.append(edge_profile_term(i_p, i_ep, mask, pgrid, basis, weight=weight))
+    term = terms[0] if len(terms) == 1 else terms[0] + terms[1]
+    result = nonneg_lasso(term, lambda_w, weights[active])
+    new = np.zeros(level.grid.counts)
+    new[active] = result.x
+    if not new.max() > 0:  # the L1 weight swallowed everything: keep the previous MDF
+        return weights, result.costs[-1] if result.costs else float("nan"), result.nit
+    cost = result.costs[-1] if result.costs else float("nan")
+    return _clean(new), cost, result.nit
+
+
+def estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
+                    max_blur: float | None = None, focal_px: float | None = None,
+                    profiles=None, *, callback=None, **params) -> MotionEstimate:
+    """Estimate the camera motion of a blurred photo.
+
+    The plain-function face of :func:`iter_estimate_motion` (same parameters);
+    ``callback(progress)`` is called with each progress record and may raise
+    ``StopIteration`` to stop early with the estimate so far.
+
+    Examples
+    --------
+    >>> from napari_edgecme import estimate_motion, make_case, edge_scene
+    >>> case = make_case(edge_scene((160, 160), rng=0), "inplane", extent=7, rng=0)
+    >>> est = estimate_motion(case.blurred, "xu", "inplane", max_blur=11)
+    >>> est.motion.model
+    'inplane'
+    """
+    return drive(iter_estimate_motion(image, method, model, max_blur, focal_px, profiles,
+                                      **params), callback)
+
+
+def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: float | None = None,
+           focal_px: float | None = None, *, deconvolution: str = "hyperlaplacian",
+           deconv_params: dict | None = None, callback=None, **params):
+    """Estimate the camera motion, then deconvolve the image with it at full resolution.
+
+    Returns
+    -------
+    restored : ndarray, float32 in [0, 1], shaped like ``image``
+    estimate : MotionEstimate
+    """
+    from .deconv import deconvolve
+
+    estimate = estimate_motion(image, method, model, max_blur, focal_px, callback=callback,
+                               **params)
+    restored = deconvolve(image, estimate.motion, deconvolution, callback=callback,
+                          **(deconv_params or {}))
+    return restored, estimate

@@ -1,0 +1,148 @@
+"""Non-negative L1-regularised least squares for the MDF (paper Eqs. 16, 19, 22).
+
+Every MDF update of the estimators is an instance of
+
+    min_w  1/2 w^T Q w - b^T w + lambda_w * sum(w),   w >= 0,
+
+(``sum(w)`` is ``||w||_1`` on the non-negative orthant) where ``Q`` and ``b`` are sums
+of data terms, each available only through products ``Q w`` that are cheap (they
+never touch the full image; see :mod:`napari_edgecme.core.mdf`). We solve it with
+FISTA (Beck & Teboulle 2009) with adaptive restart (O'Donoghue & Candès 2015): it
+needs one ``Q w`` product per iteration, no line search once the Lipschitz constant
+is known (estimated by power iteration), warm-starts from the previous scale's
+estimate, and its iterates are non-negative by construction.
+
+Why FISTA: we measured it against projected coordinate descent on an explicit Gram
+(exact but O(n^2) memory and time to build for the thousands of poses of a rotation
+grid) and against ADMM (needs a linear solve with ``Q + rho I`` per iteration, i.e.
+an inner CG). With ``Q w`` costing a few small FFTs, FISTA converges in 50-300
+iterations to the tolerance that matters for the MDF (a change of the support),
+which is the fastest of the three on our problems; see ``benchmarks/bench_lasso.py``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["LassoResult", "QuadraticTerm", "lipschitz_constant", "nonneg_lasso"]
+
+
+@dataclass
+class QuadraticTerm:
+    """``1/2 w^T Q w - b^T w + c/2`` given by the product ``Q w`` (symmetric PSD ``Q``).
+
+    Attributes
+    ----------
+    matvec : callable
+        ``w (n,) -> Q w (n,)``.
+    linear : ndarray of shape (n,)
+        ``b`` (for a least-squares term ``||A w - y||^2 / 2``: ``A^T y``).
+    constant : float
+        ``c`` (``||y||^2``), so that :meth:`value` is the least-squares residual.
+    """
+
+    matvec: Callable[[np.ndarray], np.ndarray]
+    linear: np.ndarray
+    constant: float = 0.0
+
+    def value(self, w: np.ndarray, Qw: np.ndarray | None = None) -> float:
+        Qw = self.matvec(w) if Qw is None else Qw
+        return float(0.5 * w @ Qw - self.linear @ w + 0.5 * self.constant)
+
+    def __add__(self, other: QuadraticTerm) -> QuadraticTerm:
+        return QuadraticTerm(lambda w: self.matvec(w) + other.matvec(w),
+                             self.linear + other.linear, self.constant + other.constant)
+
+    def scaled(self, factor: float) -> QuadraticTerm:
+        return QuadraticTerm(lambda w: factor * self.matvec(w), factor * self.linear,
+                             factor * self.constant)
+
+
+@dataclass
+class LassoResult:
+    """Outcome of :func:`nonneg_lasso` (in the manner of ``scipy.optimize.OptimizeResult``)."""
+
+    x: np.ndarray
+    nit: int
+    converged: bool
+    message: str
+    costs: list[float] = field(default_factory=list)
+
+
+def lipschitz_constant(matvec, n: int, n_iter: int = 30, rng=0) -> float:
+    """Largest eigenvalue of the PSD operator ``matvec`` (power iteration, +5% margin)."""
+    v = np.random.default_rng(rng).random(n) + 0.5
+    v /= np.linalg.norm(v)
+    lam = 0.0
+    for _ in range(n_iter):
+        u = matvec(v)
+        new = float(np.linalg.norm(u))
+        if new == 0:
+            return 1.0
+        v = u / new
+        if abs(new - lam) < 1e-4 * new:
+            lam = new
+            break
+        lam = new
+    return 1.05 * lam
+
+
+def nonneg_lasso(term: QuadraticTerm, lam: float, w0: np.ndarray, *, max_iter: int = 200,
+                 tol: float = 1e-4, lipschitz: float | None = None) -> LassoResult:
+    """Solve ``min_w 1/2 w^T Q w - b^T w + lam * sum(w)`` subject to ``w >= 0`` by FISTA.
+
+    Parameters
+    ----------
+    term : QuadraticTerm
+        The smooth part.
+    lam : float
+        L1 weight ``lambda_w`` (>= 0).
+    w0 : ndarray of shape (n,)
+        Starting point (warm start); negative entries are clipped.
+    max_iter : int
+        Iteration cap.
+    tol : float
+        Stop when the relative change of ``w`` falls below ``tol``.
+    lipschitz : float, optional
+        Upper bound on the largest eigenvalue of ``Q`` (estimated when omitted).
+
+    Returns
+    -------
+    LassoResult
+    """
+    n = w0.size
+    L = lipschitz if lipschitz is not None else lipschitz_constant(term.matvec, n)
+    step = 1.0 / max(L, 1e-30)
+    x = np.maximum(np.asarray(w0, np.float64), 0)
+    y = x.copy()
+    t = 1.0
+    costs: list[float] = []
+    converged = False
+    it = 0
+    prev_cost = np.inf
+    for it in range(1, max_iter + 1):
+        Qy = term.matvec(y)
+        grad = Qy - term.linear + lam
+        x_new = np.maximum(y - step * grad, 0.0)
+        t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
+        # adaptive restart: drop the momentum when it points uphill
+        if (y - x_new) @ (x_new - x) > 0:
+            t_new = 1.0
+            y = x_new.copy()
+        else:
+            y = x_new + ((t - 1.0) / t_new) * (x_new - x)
+        change = np.linalg.norm(x_new - x) / max(np.linalg.norm(x_new), 1e-30)
+        x, t = x_new, t_new
+        if it % 10 == 0 or change < tol:
+            Qx = term.matvec(x)
+            cost = term.value(x, Qx) + lam * float(x.sum())
+            costs.append(cost)
+            if change < tol or abs(prev_cost - cost) <= 1e-7 * abs(cost):
+                converged = True
+                break
+            prev_cost = cost
+    message = "converged" if converged else f"reached max_iter={max_iter}"
+    return LassoResult(x, it, converged, message, costs)
