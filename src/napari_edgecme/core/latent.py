@@ -28,7 +28,8 @@ __all__ = ["l0_latent"]
 
 
 def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
-              kappa: float = 2.0, beta_max: float = 64.0, should_stop=None) -> np.ndarray:
+              kappa: float = 2.0, beta_max: float = 64.0, should_stop=None,
+              return_gradients: bool = False):
     """Estimate the latent image under an L0 gradient prior (Eq. 21).
 
     Parameters
@@ -74,4 +75,7 @@ def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
         beta *= kappa
         if should_stop is not None and should_stop():
             break
-    return np.ascontiguousarray(f[domain.inner])
+    f = np.ascontiguousarray(f[domain.inner])
+    if return_gradients:
+        return f, np.stack([gx[domain.inner], gy[domain.inner]])
+    return f

@@ -1,0 +1,83 @@
+"""Claims about the MDF solver and data terms: the lasso's optimality, and that the cheap
+quadratics equal the filter-flow objectives they stand for."""
+
+import numpy as np
+import pytest
+from scipy.signal import fftconvolve
+
+from napari_edgecme import Intrinsics, pose_grid
+from napari_edgecme.core.lasso import QuadraticTerm, nonneg_lasso
+from napari_edgecme.core.mdf import edge_profile_term, gradient_term, masked_eff_matrix, psf_basis
+from napari_edgecme.core.operators import EfficientFilterFlowWeights, PatchGrid
+
+
+def test_nonneg_lasso_satisfies_the_kkt_conditions(rng):
+    A = rng.standard_normal((80, 40))
+    w_true = np.zeros(40)
+    w_true[[3, 17, 29]] = [0.5, 0.3, 0.2]
+    y = A @ w_true + 0.01 * rng.standard_normal(80)
+    term = QuadraticTerm(lambda w: A.T @ (A @ w), A.T @ y, float(y @ y))
+    lam = 0.05
+    res = nonneg_lasso(term, lam, np.zeros(40), max_iter=5000, tol=1e-10)
+    grad = A.T @ (A @ res.x) - A.T @ y + lam
+    assert res.converged
+    assert np.all(res.x >= 0)
+    active = res.x > 1e-8
+    assert np.abs(grad[active]).max() < 1e-5  # stationary on the support
+    assert grad[~active].min() > -1e-5  # no descent direction off the support
+    assert set(np.argsort(res.x)[-3:]) == {3, 17, 29}
+
+
+@pytest.fixture(scope="module")
+def setting():
+    rng = np.random.default_rng(1)
+    cam = Intrinsics.from_image_shape((90, 110))
+    poses = pose_grid("rotation", cam, 7).poses()
+    grid = PatchGrid((90, 110), 13, stride=40, overlap=20)
+    basis = psf_basis("rotation", cam, poses, grid)
+    return rng, cam, poses, grid, basis
+
+
+def test_gradient_term_is_the_windowed_residual_of_eq22(setting):
+    rng, _cam, poses, grid, basis = setting
+    f = rng.standard_normal((2, 90, 110))
+    g = rng.standard_normal((2, 90, 110))
+    term = gradient_term(f, g, grid, basis)
+    w = rng.random(len(poses))
+    pf, pg = grid.windowed_patches(f), grid.windowed_patches(g)
+    K = grid.psf_size
+    h = (K - 1) // 2
+    k = (basis @ w).reshape(-1, K, K)
+    direct = 0.0
+    for c in range(2):
+        for r in range(grid.n_patches):
+            blurred = fftconvolve(pf[c, r], k[r], mode="full")
+            target = np.zeros_like(blurred)
+            target[h:h + pg.shape[-2], h:h + pg.shape[-1]] = pg[c, r]
+            direct += np.sum((blurred - target) ** 2)
+    energy = np.sum(pg**2)
+    assert term.value(w) == pytest.approx(direct / (2 * energy), rel=1e-9)
+    # and its gradient is Q w - b
+    e = np.zeros_like(w)
+    e[5] = 1.0
+    numeric = (term.value(w + 1e-6 * e) - term.value(w - 1e-6 * e)) / 2e-6
+    assert numeric == pytest.approx((term.matvec(w) - term.linear)[5], rel=1e-5)
+
+
+def test_edge_profile_term_uses_the_exact_masked_eff_rows(setting):
+    rng, cam, poses, grid, basis = setting
+    prediction = np.zeros((90, 110))
+    prediction[20:60, 50] = 0.7
+    prediction[70, 10:80] = 0.4
+    mask = np.zeros((90, 110), bool)
+    mask[30:40, 40:60] = True
+    mask[60:80, 30:35] = True
+    op = EfficientFilterFlowWeights(prediction, "rotation", cam, poses, stride=40, overlap=20,
+                                    psf_size=grid.psf_size, dtype=np.float64)
+    w = rng.random(len(poses))
+    rows = masked_eff_matrix(prediction, mask, grid) @ basis
+    assert rows @ w == pytest.approx(op.forward(w)[mask], rel=1e-10, abs=1e-12)
+    target = rng.random((90, 110))
+    term = edge_profile_term(prediction, target, mask, grid, basis)
+    resid = op.forward(w)[mask] - target[mask]
+    assert term.value(w) == pytest.approx(resid @ resid / (2 * target[mask] @ target[mask]))
