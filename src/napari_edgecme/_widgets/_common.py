@@ -1,0 +1,546 @@
+"""Plumbing shared by the three widgets: one way of running engine generators.
+
+:class:`EngineRunner` runs an ``iter_*`` generator of the engine in a napari worker
+thread and owns everything around it: the Run/Cancel buttons, a napari progress
+bar that follows the :class:`~napari_edgecme.core.progress.Progress` records, the
+status line, notifications, and closing the generator when the run ends.
+
+The rules it enforces (napari's threading model):
+
+* the worker only sees plain data (arrays snapshotted on the main thread with
+  :func:`snapshot_image` and parameters); it never touches a layer or a widget;
+* every handler (``yielded``, ``returned``, ``errored``, ``aborted``, ``finished``)
+  runs on the main thread, where layers are created and updated;
+* bad input -- the engine's documented one-line ``ValueError`` -- becomes a napari
+  error notification with that line; anything else is an unexpected failure and
+  is relayed by napari's worker with its traceback.
+
+The rest are small helpers: layer-metadata keys, layer choices, spatial transforms,
+focal length from metadata/EXIF, a "max blur" control and themed matplotlib canvases.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Generator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from napari.layers import Image, Layer
+from napari.qt.threading import GeneratorWorker, create_worker
+from napari.utils import progress
+from napari.utils.notifications import show_error, show_info
+from qtpy.QtWidgets import (
+    QCheckBox,
+    QDoubleSpinBox,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QWidget,
+)
+
+from ..core.camera import DEFAULT_FOCAL_35MM
+from ..core.estimate import default_max_blur
+from ..core.motion import CameraMotion
+from ..core.progress import Progress
+
+__all__ = [
+    "MOTION_KEY",
+    "PROFILES_KEY",
+    "SOURCE_KEY",
+    "Connections",
+    "EngineRunner",
+    "Failed",
+    "MaxBlurControl",
+    "focal_from_layer",
+    "image_layers",
+    "motion_from",
+    "plot_canvas",
+    "snapshot_image",
+    "spatial_kwargs",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Layer-metadata key of a camera motion: the JSON dict of ``CameraMotion.to_dict()``
+#: (a dict, not the object, so that it survives saving the layer).
+MOTION_KEY = "edgecme_motion"
+#: Layer-metadata key of the edge profiles a Shapes layer shows (``EdgeProfiles``).
+PROFILES_KEY = "edgecme_profiles"
+#: Layer-metadata key naming the image layer a result was computed from.
+SOURCE_KEY = "edgecme_source"
+
+# EXIF tags (Exif sub-IFD): FocalLengthIn35mmFilm
+_EXIF_IFD = 0x8769
+_EXIF_FOCAL_35MM = 0xA405
+
+
+# ---------------------------------------------------------------------------------------
+# layers
+# ---------------------------------------------------------------------------------------
+
+def image_layers(viewer) -> list[tuple[str, Image]]:
+    """The viewer's image layers the engine can work on: one 2-D gray or RGB(A) plane.
+
+    Returned as ``(name, layer)`` pairs, the form magicgui combo boxes take.
+    """
+    return [(layer.name, layer) for layer in viewer.layers
+            if isinstance(layer, Image) and not layer.multiscale and layer.ndim == 2]
+
+
+def snapshot_image(layer: Image) -> np.ndarray:
+    """A private copy of a 2-D gray or RGB image layer's pixels, taken on the main thread.
+
+    The worker thread computes on this copy, so the layer can change (or be deleted)
+    while a run is under way. An alpha channel is dropped.
+
+    Raises
+    ------
+    ValueError
+        If the layer is not one 2-D plane (gray, RGB or RGBA).
+    """
+    if layer.multiscale:
+        raise ValueError(f"layer {layer.name!r} is multiscale; pick a single-resolution image")
+    data = np.array(layer.data, copy=True)
+    if layer.rgb and data.ndim == 3 and data.shape[-1] in (3, 4):
+        return np.ascontiguousarray(data[..., :3])
+    if data.ndim != 2:
+        raise ValueError(f"layer {layer.name!r} must be a 2-D gray or RGB image; "
+                         f"got data of shape {data.shape}")
+    return data
+
+
+def image_shape(layer: Image) -> tuple[int, int]:
+    """``(rows, cols)`` of a 2-D gray or RGB image layer."""
+    shape = layer.data.shape
+    return (int(shape[0]), int(shape[1]))
+
+
+def spatial_kwargs(layer: Layer) -> dict:
+    """The transform of ``layer`` as layer-constructor keywords, for aligned results."""
+    return {"scale": tuple(layer.scale), "translate": tuple(layer.translate),
+            "rotate": np.asarray(layer.rotate), "shear": np.asarray(layer.shear)}
+
+
+def resampled_kwargs(layer: Layer, shape) -> dict:
+    """Transform that lays an array of ``shape`` over ``layer`` (a resized copy of its data).
+
+    A resized copy maps pixel centres as ``p_image = (p + 1/2) * f - 1/2`` with
+    ``f = image_size / copy_size`` per axis; composing that with the layer's own
+    scale and translate keeps the copy exactly over the image.
+    """
+    full = np.asarray(image_shape(layer), float)
+    factor = full / np.asarray(shape[:2], float)
+    scale = np.asarray(layer.scale, float)
+    translate = np.asarray(layer.translate, float) + scale * (0.5 * factor - 0.5)
+    return {"scale": tuple(scale * factor), "translate": tuple(translate),
+            "rotate": np.asarray(layer.rotate), "shear": np.asarray(layer.shear)}
+
+
+def motion_from(obj) -> CameraMotion:
+    """The camera motion held by a layer (its metadata), a dict or a ``CameraMotion``.
+
+    Raises
+    ------
+    ValueError
+        One line naming what is missing or malformed.
+    """
+    if isinstance(obj, CameraMotion):
+        return obj
+    if isinstance(obj, Layer):
+        value = obj.metadata.get(MOTION_KEY)
+        if value is None:
+            raise ValueError(f"layer {obj.name!r} holds no camera motion in its metadata")
+        try:
+            return motion_from(value)
+        except ValueError as err:
+            raise ValueError(f"layer {obj.name!r}: {err}") from None
+    if isinstance(obj, dict):
+        return CameraMotion.from_dict(obj)
+    raise ValueError(f"expected a camera motion; got {type(obj).__name__}")
+
+
+def focal_from_layer(layer: Image) -> tuple[float | None, str]:
+    """The focal length (pixels) of the camera that took an image layer, and where it came from.
+
+    Looked for, in order: ``metadata["focal_px"]``; a 35 mm-equivalent focal length
+    ``FocalLengthIn35mmFilm`` in ``metadata`` or ``metadata["exif"]`` (as napari
+    readers may store EXIF); the EXIF of the file the layer was opened from. The
+    35 mm value converts as ``f = f35 / 36 * max(rows, cols)`` (DESIGN.md section 2).
+
+    Returns
+    -------
+    focal_px : float or None
+        None when nothing is known: the engine then assumes its 35 mm-equivalent default.
+    source : str
+        Human-readable origin, for the widget's hint.
+    """
+    shape = image_shape(layer)
+    meta = layer.metadata or {}
+    value = _positive(meta.get("focal_px"))
+    if value is not None:
+        return value, "layer metadata (focal_px)"
+    exif = meta.get("exif") if isinstance(meta.get("exif"), dict) else {}
+    for where, table in (("layer metadata", meta), ("layer EXIF metadata", exif)):
+        f35 = _positive(table.get("FocalLengthIn35mmFilm"))
+        if f35 is not None:
+            return f35 / 36.0 * max(shape), f"{where} ({f35:g} mm equivalent)"
+    path = getattr(layer.source, "path", None)
+    if path:
+        f35 = _exif_focal_35mm(path)
+        if f35 is not None:
+            return f35 / 36.0 * max(shape), f"EXIF of {Path(path).name} ({f35:g} mm equivalent)"
+    return None, f"default ({DEFAULT_FOCAL_35MM:g} mm equivalent)"
+
+
+def default_focal_px(shape) -> float:
+    """The engine's focal length for an image without EXIF (35 mm-equivalent default)."""
+    return DEFAULT_FOCAL_35MM / 36.0 * max(shape[:2])
+
+
+def _positive(value) -> float | None:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return None
+    return out if math.isfinite(out) and out > 0 else None
+
+
+def _exif_focal_35mm(path) -> float | None:
+    """``FocalLengthIn35mmFilm`` from a photo's EXIF, or None (no file, no tag, no reader)."""
+    try:
+        from PIL import Image as PILImage
+
+        with PILImage.open(path) as im:
+            return _positive(im.getexif().get_ifd(_EXIF_IFD).get(_EXIF_FOCAL_35MM))
+    except Exception:  # any unreadable file simply has no usable EXIF
+        logger.debug("no EXIF focal length in %s", path, exc_info=True)
+        return None
+
+
+# ---------------------------------------------------------------------------------------
+# running engine generators
+# ---------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Failed:
+    """What a run returns when the engine refused its input (a one-line ``ValueError``)."""
+
+    message: str
+
+
+def first_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+def _relay(gen: Generator):
+    """Runs in the worker thread: relay an engine generator's records and result.
+
+    The engine's bad-input error, a one-line ``ValueError``, is returned as
+    :class:`Failed` so that the main thread can show that line; any other exception
+    propagates to the worker's ``errored`` signal (napari relays it with its traceback).
+    """
+    try:
+        return (yield from gen)
+    except ValueError as err:
+        logger.debug("engine refused the input", exc_info=True)
+        return Failed(first_line(err))
+
+
+class EngineRunner:
+    """Runs one engine generator at a time for a widget, in a napari worker thread.
+
+    Parameters
+    ----------
+    owner : QWidget
+        The widget; when it is destroyed a running job is cancelled and no handler
+        touches it any more.
+    title : str
+        Prefix of the progress bar and of notifications, e.g. ``"Camera motion"``.
+    run_button, cancel_button : QPushButton
+        Run is disabled while a job runs; Cancel only then.
+    status : QLabel
+        Shows the latest progress message and the outcome.
+    """
+
+    def __init__(self, owner: QWidget, title: str, run_button: QPushButton,
+                 cancel_button: QPushButton, status: QLabel):
+        self.title = title
+        self._run_button = run_button
+        self._cancel_button = cancel_button
+        self._status = status
+        self._worker: GeneratorWorker | None = None
+        self._gen: Generator | None = None
+        self._alive = True
+        self._outcome = ""
+        self.progress_bar: progress | None = None
+        self._on_result: Callable = _ignore
+        self._on_record: Callable = _ignore
+        self._on_end: Callable = _ignore
+        cancel_button.setEnabled(False)
+        cancel_button.clicked.connect(self.cancel)
+        # a lambda holding the runner, not the widget: called while the widget dies
+        owner.destroyed.connect(lambda *_: self._owner_destroyed())
+
+    # -- state -----------------------------------------------------------------------------
+    @property
+    def is_running(self) -> bool:
+        """True from :meth:`start` until the worker has finished (and the UI is reset)."""
+        return self._worker is not None
+
+    @property
+    def outcome(self) -> str:
+        """How the last run ended: ``""`` (none yet), ``"done"``, ``"failed"``, ``"cancelled"``."""
+        return self._outcome
+
+    # -- control ---------------------------------------------------------------------------
+    def start(self, gen: Generator, on_result: Callable, *, on_record: Callable | None = None,
+              on_end: Callable | None = None) -> GeneratorWorker | None:
+        """Run ``gen`` (an ``iter_*`` generator, not started yet) in a worker thread.
+
+        Parameters
+        ----------
+        gen : generator
+            Yields :class:`Progress` records and returns the result. Created on the
+            main thread from snapshots; its body runs in the worker.
+        on_result : callable
+            ``on_result(result)`` on the main thread when the run completed; returns
+            an optional summary line for the status label.
+        on_record : callable, optional
+            ``on_record(progress)`` on the main thread for each record (e.g. previews).
+        on_end : callable, optional
+            ``on_end(outcome)`` on the main thread after every run, whatever its
+            outcome (``"done"``, ``"failed"``, ``"cancelled"``): clean-up of transient
+            layers.
+
+        Returns
+        -------
+        GeneratorWorker or None
+            None if a job is already running (Run is disabled then anyway).
+        """
+        if self.is_running:
+            return None
+        self._gen = gen
+        self._on_result = on_result
+        self._on_record = on_record or _ignore
+        self._on_end = on_end or _ignore
+        self._outcome = ""
+        self.progress_bar = progress(total=0, desc=self.title)
+        worker = create_worker(
+            _relay, gen, _start_thread=False,
+            _connect={"yielded": self._on_yielded, "returned": self._on_returned,
+                      "errored": self._on_errored, "aborted": self._on_aborted,
+                      "finished": self._on_finished})
+        self._worker = worker
+        self._run_button.setEnabled(False)
+        self._cancel_button.setEnabled(True)
+        self._status.setText(f"{self.title}: starting…")
+        worker.start()
+        return worker
+
+    def cancel(self) -> None:
+        """Ask the running job to stop; the engine stops at its next progress record."""
+        if self._worker is None:
+            return
+        self._worker.quit()
+        if self._alive:
+            self._cancel_button.setEnabled(False)
+            self._status.setText(f"{self.title}: cancelling…")
+
+    # -- worker signals (main thread) ---------------------------------------------------------
+    def _on_yielded(self, record) -> None:
+        if not isinstance(record, Progress) or self._worker is None:
+            return
+        bar = self.progress_bar
+        if bar is not None:
+            if bar.total != record.total:
+                bar.total = record.total
+            bar.set_description(f"{self.title}: {record.message}" if record.message
+                                else self.title)
+            if record.step > bar.n:
+                bar.update(record.step - bar.n)
+        if self._alive:
+            self._status.setText(f"{self.title}: {record.message or 'running'}")
+            self._on_record(record)
+
+    def _on_returned(self, result) -> None:
+        if isinstance(result, Failed):
+            self._outcome = "failed"
+            show_error(f"{self.title}: {result.message}")
+            if self._alive:
+                self._status.setText(f"{self.title} failed: {result.message}")
+            return
+        self._outcome = "done"
+        if self._alive:
+            summary = self._on_result(result)
+            self._status.setText(f"{self.title}: {summary or 'done'}")
+
+    def _on_errored(self, exc: BaseException) -> None:
+        # napari's worker has already relayed it as an error notification (with traceback)
+        self._outcome = "failed"
+        if self._alive:
+            self._status.setText(f"{self.title} failed: {first_line(exc)}")
+
+    def _on_aborted(self) -> None:
+        self._outcome = "cancelled"
+        if self._alive:
+            show_info(f"{self.title}: cancelled")
+            self._status.setText(f"{self.title}: cancelled")
+
+    def _on_finished(self) -> None:
+        if self.progress_bar is not None:
+            self.progress_bar.close()
+            self.progress_bar = None
+        if self._gen is not None:
+            # the worker left the generator suspended at a yield if it was cancelled:
+            # closing it ends the engine's work for good (the thread is done with it)
+            self._gen.close()
+            self._gen = None
+        self._worker = None
+        if not self._outcome:  # finished without any of the signals above
+            self._outcome = "cancelled"
+        if self._alive:
+            self._run_button.setEnabled(True)
+            self._cancel_button.setEnabled(False)
+            self._on_end(self._outcome)
+        self._on_result = self._on_record = self._on_end = _ignore
+
+    def _owner_destroyed(self) -> None:
+        self._alive = False
+        if self._worker is not None:
+            self._worker.quit()
+
+
+def _ignore(*_args, **_kwargs):
+    return None
+
+
+class Connections:
+    """Callbacks a widget connects to napari model events, cut when the widget is destroyed.
+
+    Model objects (layers, the layer list) outlive dock widgets; a callback left
+    connected to a destroyed Qt widget would fail on the next event.
+    """
+
+    def __init__(self, owner: QWidget):
+        self._items: list[tuple[object, object, Callable]] = []
+        owner.destroyed.connect(lambda *_: self.disconnect_all())
+
+    def connect(self, emitter, callback: Callable, key=None) -> None:
+        """Connect ``callback`` to ``emitter``, remembered under ``key`` (e.g. a layer)."""
+        emitter.connect(callback)
+        self._items.append((key, emitter, callback))
+
+    def disconnect_key(self, key) -> None:
+        """Disconnect everything connected under ``key``."""
+        for k, emitter, callback in self._items:
+            if k is key:
+                _disconnect(emitter, callback)
+        self._items = [item for item in self._items if item[0] is not key]
+
+    def disconnect_all(self) -> None:
+        for _key, emitter, callback in self._items:
+            _disconnect(emitter, callback)
+        self._items = []
+
+
+def _disconnect(emitter, callback) -> None:
+    try:
+        emitter.disconnect(callback)
+    except (RuntimeError, ValueError, TypeError):  # already gone
+        logger.debug("could not disconnect %r", callback, exc_info=True)
+
+
+# ---------------------------------------------------------------------------------------
+# controls
+# ---------------------------------------------------------------------------------------
+
+class MaxBlurControl(QWidget):
+    """Largest blur extent to look for, in pixels: "auto" (the engine's default) or a value.
+
+    Auto is :func:`~napari_edgecme.core.estimate.default_max_blur` of the image:
+    4% of its longer side, at least 15 px.
+    """
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.auto = QCheckBox("auto")
+        self.auto.setChecked(True)
+        self.auto.setToolTip("4% of the image's longer side, at least 15 px")
+        self.spin = QDoubleSpinBox()
+        self.spin.setRange(1.0, 500.0)
+        self.spin.setDecimals(1)
+        self.spin.setSingleStep(1.0)
+        self.spin.setSuffix(" px")
+        self.spin.setValue(15.0)
+        self.spin.setEnabled(False)
+        self.spin.setToolTip("Side of the largest local PSF's bounding box, in image pixels")
+        self.auto.toggled.connect(lambda on: self.spin.setEnabled(not on))
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(self.spin, 1)
+        layout.addWidget(self.auto)
+
+    def show_default_for(self, shape) -> None:
+        """While on auto, display the value auto resolves to for an image of ``shape``."""
+        if self.auto.isChecked() and shape is not None:
+            self.spin.setValue(default_max_blur(shape))
+
+    def value_for(self, shape) -> float:
+        """The max blur to use for an image of ``shape`` (pixels)."""
+        if self.auto.isChecked():
+            return default_max_blur(shape)
+        return float(self.spin.value())
+
+
+def plot_canvas(viewer, n_axes: int, height: float = 2.6):
+    """A matplotlib canvas for a dock widget, in the viewer's theme colours.
+
+    Returns
+    -------
+    (FigureCanvasQTAgg, list of Axes) or (QLabel, [])
+        A label saying how to get plots when matplotlib (the ``plot`` extra) is missing.
+    """
+    try:
+        from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        label = QLabel("Install matplotlib to see plots here: pip install 'napari-edgecme[plot]'")
+        label.setWordWrap(True)
+        return label, []
+    fg, bg = _theme_colours(viewer)
+    fig = Figure(figsize=(3.6, height), layout="constrained", facecolor=bg)
+    canvas = FigureCanvasQTAgg(fig)
+    axes = list(np.atleast_1d(fig.subplots(1, n_axes)))
+    for ax in axes:
+        style_axes(ax, fg, bg)
+    canvas.setMinimumHeight(int(height * 72))
+    return canvas, axes
+
+
+def style_axes(ax, fg: str, bg: str) -> None:
+    ax.set_facecolor(bg)
+    for spine in ax.spines.values():
+        spine.set_color(fg)
+    ax.tick_params(colors=fg, labelsize=7)
+    ax.xaxis.label.set_color(fg)
+    ax.yaxis.label.set_color(fg)
+    ax.title.set_color(fg)
+    ax.xaxis.label.set_fontsize(8)
+    ax.yaxis.label.set_fontsize(8)
+    ax.title.set_fontsize(8)
+
+
+def _theme_colours(viewer) -> tuple[str, str]:
+    """``(foreground, background)`` of the viewer's theme, as hex strings."""
+    try:
+        from napari.utils.theme import get_theme
+
+        theme = get_theme(viewer.theme)
+        return theme.text.as_hex(), theme.background.as_hex()
+    except Exception:  # unknown or "system" theme: neutral dark colours
+        logger.debug("theme colours unavailable", exc_info=True)
+        return "#f0f1f2", "#262930"

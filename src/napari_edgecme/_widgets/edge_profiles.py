@@ -1,0 +1,525 @@
+"""The "Edge profiles" widget: detect, inspect, pick and export edge profiles.
+
+Edge profiles (paper §2) are the alpha mattes of blurred straight step edges,
+sampled along the edge normal; their derivatives are Radon slices of the local
+PSFs (Eq. 11), the measurements EpAlone and Xu+Ep fit the camera motion to.
+
+For an image layer the widget keeps two layers in step with one
+:class:`~napari_edgecme.core.edges.EdgeProfiles` set:
+
+* a Shapes layer ``"<image> edge profiles"``: one line across each edge (centroid
+  plus/minus the sampling window along the normal), coloured by quality; it holds
+  the profile set in ``metadata["edgecme_profiles"]`` (in shape order), which is
+  what the "Camera motion" widget reads;
+* a Points layer ``"<image> profile centroids"`` at the centroids (derived, redrawn
+  from the set).
+
+Editing the Shapes layer edits the set: a line drawn across an edge is measured by
+:func:`~napari_edgecme.core.edges.profile_along_line` and kept (redrawn centred on
+its centroid) or refused with the reason as a notification; deleting lines deletes
+their profiles. The docked plot shows the selected profiles (or all of them) and
+their derivatives.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import napari
+import numpy as np
+from magicgui.widgets import ComboBox
+from napari.layers import Image, Points, Shapes
+from napari.utils.colormaps import ensure_colormap
+from napari.utils.notifications import show_error, show_info, show_warning
+from qtpy.QtCore import QTimer
+from qtpy.QtWidgets import (
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QVBoxLayout,
+    QWidget,
+)
+
+from ..core.edges import EdgeProfiles, extract_edge_profiles, profile_along_line
+from ..core.progress import Progress
+from ._common import (
+    PROFILES_KEY,
+    SOURCE_KEY,
+    Connections,
+    EngineRunner,
+    MaxBlurControl,
+    first_line,
+    image_layers,
+    image_shape,
+    plot_canvas,
+    snapshot_image,
+    spatial_kwargs,
+)
+
+__all__ = ["EdgeProfilesWidget", "iter_detect"]
+
+logger = logging.getLogger(__name__)
+
+#: Metadata key of the origin of each profile, ``"detected"`` or ``"hand"`` (shape order).
+ORIGIN_KEY = "edgecme_profile_origin"
+_ROLE_KEY = "edgecme_role"
+_CENTROIDS_ROLE = "profile centroids"
+_QUALITY_CMAP = "viridis"
+_DRAW_COLOUR = "#ff8c00"  # a line being drawn, before it is measured
+_MAX_PLOTTED = 60
+
+
+def iter_detect(image: np.ndarray, max_blur: float, rng=0):
+    """:func:`extract_edge_profiles` in the engine's generator protocol (one record).
+
+    Detection is one call that takes a fraction of a second on photos of common
+    size, so it reports once; a cancel is honoured when it returns.
+    """
+    yield Progress("profiles", 0, 1, "detecting edge profiles")
+    profiles = extract_edge_profiles(image, max_blur, rng=rng)
+    yield Progress("profiles", 1, 1, f"{len(profiles)} edge profiles")
+    return profiles
+
+
+@dataclass
+class _ProfileLayers:
+    """The layers that show one profile set."""
+
+    shapes: Shapes
+    image: Image
+    points: Points | None = None
+
+    @property
+    def profiles(self) -> EdgeProfiles:
+        return self.shapes.metadata[PROFILES_KEY]
+
+    @property
+    def origins(self) -> list[str]:
+        return list(self.shapes.metadata.get(ORIGIN_KEY, ["detected"] * len(self.profiles)))
+
+
+def profile_lines(profiles: EdgeProfiles) -> np.ndarray:
+    """The line drawn for each profile: its sampling window across the edge, (n, 2, 2).
+
+    From ``centroid - R n`` to ``centroid + R n`` (``n`` the unit normal as
+    ``(drow, dcol)``, ``R`` the half-length of the profile's offsets), in the
+    image's pixel coordinates ``(row, col)``.
+    """
+    if len(profiles) == 0:
+        return np.zeros((0, 2, 2))
+    half = 0.5 * float(profiles.offsets[-1] - profiles.offsets[0])
+    centre = profiles.centroids[:, None, :]
+    step = half * profiles.normals[:, None, :]
+    return np.concatenate([centre - step, centre + step], axis=1)
+
+
+class EdgeProfilesWidget(QWidget):
+    """Detect edge profiles, edit them by hand, plot and export them.
+
+    Parameters
+    ----------
+    viewer : napari.viewer.Viewer
+        The viewer (or a :class:`napari.components.ViewerModel`) whose layers the
+        widget reads and writes.
+    """
+
+    def __init__(self, viewer: napari.viewer.Viewer, parent: QWidget | None = None):
+        super().__init__(parent)
+        self._viewer = viewer
+        self._attached: list[_ProfileLayers] = []
+        self._current: _ProfileLayers | None = None
+        self._rendering = False
+        self._pending: list[Shapes] = []
+        self._connections = Connections(self)
+
+        self.image_combo = ComboBox(label="image", choices=self._image_choices)
+        self.image_combo.native.setToolTip("2-D gray or RGB image layer to take profiles from")
+        self.max_blur = MaxBlurControl()
+        self.detect_button = QPushButton("Detect")
+        self.detect_button.setToolTip("Find, validate and centroid-align edge profiles "
+                                      "(runs in the background)")
+        self.cancel_button = QPushButton("Cancel")
+        self.pick_button = QPushButton("Pick by hand")
+        self.pick_button.setToolTip("Draw lines across straight edges, with flat ground on "
+                                    "both sides; delete lines to drop profiles")
+        self.export_button = QPushButton("Export JSON…")
+        self.export_button.setToolTip("Save the profile set shown below as a JSON file")
+        self.status = QLabel("")
+        self.status.setWordWrap(True)
+        self.count_label = QLabel("no profiles")
+        self.count_label.setWordWrap(True)
+        self.plot_caption = QLabel("")
+        self.plot_caption.setWordWrap(True)
+        self.canvas, self._axes = plot_canvas(viewer, 2)
+
+        form = QFormLayout()
+        form.addRow("image", self.image_combo.native)
+        form.addRow("max blur", self.max_blur)
+        run_row = QHBoxLayout()
+        run_row.addWidget(self.detect_button)
+        run_row.addWidget(self.cancel_button)
+        edit_row = QHBoxLayout()
+        edit_row.addWidget(self.pick_button)
+        edit_row.addWidget(self.export_button)
+        layout = QVBoxLayout(self)
+        layout.addLayout(form)
+        layout.addLayout(run_row)
+        layout.addWidget(self.status)
+        layout.addWidget(self.count_label)
+        layout.addWidget(self.plot_caption)
+        layout.addWidget(self.canvas, 1)
+        layout.addLayout(edit_row)
+
+        self.runner = EngineRunner(self, "Edge profiles", self.detect_button, self.cancel_button,
+                                   self.status)
+        self.detect_button.clicked.connect(self.detect)
+        self.pick_button.clicked.connect(self.pick_by_hand)
+        self.export_button.clicked.connect(lambda: self.export())
+        self.image_combo.changed.connect(self._on_image_changed)
+        self._connections.connect(viewer.layers.selection.events.active, self._on_active_layer)
+        self.reset_choices()
+        self._refresh_view()
+
+    # -- choices ---------------------------------------------------------------------------
+    def _image_choices(self, _widget=None):
+        return image_layers(self._viewer)
+
+    def reset_choices(self, *_args) -> None:
+        """Refresh the layer choices (napari calls this when layers change)."""
+        self.image_combo.reset_choices()
+        self._sync_attached()
+
+    def _on_image_changed(self, layer) -> None:
+        if layer is not None:
+            self.max_blur.show_default_for(image_shape(layer))
+            rec = self._record_for_image(layer)
+            if rec is not None:
+                self._set_current(rec)
+
+    def _on_active_layer(self, event=None) -> None:
+        rec = self._record_for_shapes(self._viewer.layers.selection.active)
+        if rec is not None:
+            self._set_current(rec)
+
+    # -- actions ---------------------------------------------------------------------------
+    def detect(self) -> None:
+        """Detect edge profiles in the chosen image, in a worker thread."""
+        image = self.image_combo.value
+        if image is None:
+            show_error("Edge profiles: choose an image layer first")
+            return
+        try:
+            data = snapshot_image(image)
+        except ValueError as err:
+            show_error(f"Edge profiles: {first_line(err)}")
+            return
+        max_blur = self.max_blur.value_for(data.shape)
+        self.runner.start(iter_detect(data, max_blur),
+                          on_result=lambda profiles: self._show_detected(image, profiles))
+
+    def pick_by_hand(self) -> None:
+        """Make the chosen image's profile layer active, in line-drawing mode."""
+        image = self.image_combo.value
+        if image is None:
+            show_error("Edge profiles: choose an image layer first")
+            return
+        rec = self._record_for_image(image) or self._create_layers(
+            image, EdgeProfiles.empty("no profiles picked yet",
+                                      max_blur=self.max_blur.value_for(image_shape(image))),
+            [])
+        self._set_current(rec)
+        self._viewer.layers.selection.active = rec.shapes
+        rec.shapes.mode = "add_line"
+        show_info("Edge profiles: draw lines across straight edges (flat ground on both sides)"
+                  "; select lines and press Delete to drop profiles")
+
+    def export(self, path: str | Path | None = None) -> Path | None:
+        """Save the current profile set as JSON (asks for a file name when ``path`` is None)."""
+        rec = self._current
+        if rec is None:
+            show_error("Edge profiles: nothing to export; detect or pick profiles first")
+            return None
+        if path is None:
+            default = f"{rec.image.name}-edge-profiles.json"
+            path, _ = QFileDialog.getSaveFileName(self, "Export edge profiles", default,
+                                                  "JSON files (*.json)")
+            if not path:
+                return None
+        path = Path(path)
+        try:
+            rec.profiles.save(path)
+        except (OSError, ValueError) as err:
+            show_error(f"Edge profiles: cannot save {path}: {first_line(err)}")
+            return None
+        show_info(f"Edge profiles: saved {len(rec.profiles)} profiles to {path}")
+        return path
+
+    @property
+    def current_layers(self) -> tuple[Shapes, Points | None] | None:
+        """The Shapes and Points layers of the profile set shown by the widget."""
+        rec = self._current
+        return None if rec is None else (rec.shapes, rec.points)
+
+    # -- results ---------------------------------------------------------------------------
+    def _show_detected(self, image: Image, detected: EdgeProfiles) -> str:
+        rec = self._record_for_image(image)
+        hand = EdgeProfiles.empty("none")
+        if rec is not None:  # hand picks survive a new detection
+            keep = np.array([o == "hand" for o in rec.origins], bool)
+            hand = rec.profiles.select(keep)
+        if len(detected) == 0 and len(hand) == 0:
+            show_warning(f"Edge profiles: no usable edge profiles in {image.name!r}: "
+                         f"{detected.reason}")
+            if rec is not None:
+                self._render(rec, detected, [])
+            return f"no profiles ({detected.reason})"
+        profiles = EdgeProfiles.concatenate([detected, hand]) if len(hand) else detected
+        origins = ["detected"] * len(detected) + ["hand"] * len(hand)
+        if rec is None:
+            rec = self._create_layers(image, profiles, origins)
+        else:
+            self._render(rec, profiles, origins)
+        self._set_current(rec)
+        return f"{len(detected)} edge profiles detected"
+
+    def _create_layers(self, image: Image, profiles: EdgeProfiles, origins) -> _ProfileLayers:
+        shape = image_shape(image)
+        width = max(1.0, max(shape) / 300.0)
+        shapes = Shapes(ndim=2, name=f"{image.name} edge profiles", edge_width=width,
+                        edge_color=_DRAW_COLOUR, face_color="transparent",
+                        metadata={SOURCE_KEY: image.name, PROFILES_KEY: profiles,
+                                  ORIGIN_KEY: list(origins)},
+                        **spatial_kwargs(image))
+        points = Points(np.zeros((0, 2)), name=f"{image.name} profile centroids",
+                        size=max(3.0, max(shape) / 100.0), border_width=0,
+                        metadata={SOURCE_KEY: image.name, _ROLE_KEY: _CENTROIDS_ROLE},
+                        **spatial_kwargs(image))
+        self._viewer.add_layer(shapes)
+        self._viewer.add_layer(points)
+        rec = self._attach(shapes, image, points)
+        self._render(rec, profiles, origins)
+        return rec
+
+    def _render(self, rec: _ProfileLayers, profiles: EdgeProfiles, origins) -> None:
+        """Redraw both layers from ``profiles`` and store the set in the Shapes metadata."""
+        origins = list(origins)
+        colours = ensure_colormap(_QUALITY_CMAP).map(np.clip(profiles.quality, 0, 1))
+        shapes = rec.shapes
+        self._rendering = True
+        try:
+            shapes.selected_data = set()
+            shapes.data = []
+            if len(profiles):
+                shapes.add_lines(list(profile_lines(profiles)), edge_color=colours)
+            shapes.features = {"quality": profiles.quality, "contrast": profiles.contrast,
+                               "origin": origins}
+            shapes.current_edge_color = _DRAW_COLOUR
+            shapes.metadata[PROFILES_KEY] = profiles
+            shapes.metadata[ORIGIN_KEY] = origins
+        finally:
+            self._rendering = False
+        points = rec.points
+        if points is None or points not in self._viewer.layers:
+            points = Points(np.zeros((0, 2)), name=f"{rec.image.name} profile centroids",
+                            size=max(3.0, max(image_shape(rec.image)) / 100.0),
+                            border_width=0,
+                            metadata={SOURCE_KEY: rec.image.name, _ROLE_KEY: _CENTROIDS_ROLE},
+                            **spatial_kwargs(rec.image))
+            self._viewer.add_layer(points)
+            rec.points = points
+        points.data = profiles.centroids
+        points.features = {"quality": profiles.quality, "origin": origins}
+        if len(profiles):
+            points.face_color = colours
+        if rec is self._current:
+            self._refresh_view()
+
+    # -- attached profile layers -------------------------------------------------------------
+    def _attach(self, shapes: Shapes, image: Image, points: Points | None) -> _ProfileLayers:
+        rec = _ProfileLayers(shapes, image, points)
+        self._attached.append(rec)
+        self._connections.connect(shapes.events.data, self._on_shapes_data, key=shapes)
+        self._connections.connect(shapes.selected_data.events.items_changed,
+                                  self._on_selection, key=shapes)
+        return rec
+
+    def _detach(self, rec: _ProfileLayers) -> None:
+        self._connections.disconnect_key(rec.shapes)
+        self._attached.remove(rec)
+        if self._current is rec:
+            self._current = None
+            self._refresh_view()
+
+    def _sync_attached(self) -> None:
+        """Forget removed profile layers; adopt profile layers this widget did not create."""
+        layers = list(self._viewer.layers)
+        for rec in list(self._attached):
+            if rec.shapes not in layers:
+                self._detach(rec)
+        by_name = {layer.name: layer for layer in layers}
+        for layer in layers:
+            if (isinstance(layer, Shapes) and self._record_for_shapes(layer) is None
+                    and isinstance(layer.metadata.get(PROFILES_KEY), EdgeProfiles)):
+                image = by_name.get(layer.metadata.get(SOURCE_KEY))
+                if isinstance(image, Image):
+                    points = next((p for p in layers if isinstance(p, Points)
+                                   and p.metadata.get(_ROLE_KEY) == _CENTROIDS_ROLE
+                                   and p.metadata.get(SOURCE_KEY) == image.name), None)
+                    self._attach(layer, image, points)
+
+    # layers are compared with ``==``, not ``is``: plugin code may hold napari's
+    # public-only proxies of the same layer objects
+    def _record_for_image(self, image: Image) -> _ProfileLayers | None:
+        layers = list(self._viewer.layers)
+        return next((rec for rec in self._attached
+                     if rec.image == image and rec.shapes in layers), None)
+
+    def _record_for_shapes(self, shapes) -> _ProfileLayers | None:
+        if shapes is None:
+            return None
+        return next((rec for rec in self._attached if rec.shapes == shapes), None)
+
+    def _set_current(self, rec: _ProfileLayers) -> None:
+        self._current = rec
+        self._refresh_view()
+
+    # -- editing -----------------------------------------------------------------------------
+    def _on_shapes_data(self, event) -> None:
+        if self._rendering or event.action not in ("added", "removed", "changed"):
+            return
+        # napari is still inside its own drawing/removal code: reconcile right after it
+        if not any(layer is event.source for layer in self._pending):
+            self._pending.append(event.source)
+        QTimer.singleShot(0, self._reconcile_pending)
+
+    def _reconcile_pending(self) -> None:
+        pending, self._pending = self._pending, []
+        for layer in pending:
+            rec = self._record_for_shapes(layer)
+            if rec is not None:
+                self._reconcile(rec)
+
+    def _reconcile(self, rec: _ProfileLayers) -> None:
+        """Bring the profile set in line with the lines the user left in the Shapes layer.
+
+        Lines that are still exactly where a profile drew them keep their profile;
+        profiles whose line is gone are dropped; any other line (new, or moved) is
+        measured with :func:`profile_along_line` and kept or refused.
+        """
+        old, old_origins = rec.profiles, rec.origins
+        index = {_line_key(line): i for i, line in enumerate(profile_lines(old))}
+        kept, picks = [], []
+        for data, kind in zip(rec.shapes.data, rec.shapes.shape_type, strict=True):
+            j = index.get(_line_key(data)) if kind == "line" else None
+            if j is not None:
+                kept.append(j)
+            else:
+                picks.append((np.asarray(data, float), kind))
+        if not picks and kept == list(range(len(old))):
+            return  # nothing changed (e.g. a line re-selected)
+        accepted, refused = [], []
+        if picks:
+            image = np.asarray(rec.image.data)
+            max_blur = old.max_blur or self.max_blur.value_for(image.shape)
+            for data, kind in picks:
+                if kind != "line" or len(data) != 2:
+                    refused.append(f"a {kind} is not a line; draw lines across edges")
+                    continue
+                try:
+                    one = profile_along_line(image, data[0], data[1], max_blur=max_blur)
+                except ValueError as err:
+                    refused.append(first_line(err))
+                    continue
+                if len(one):
+                    accepted.append(one)
+                else:
+                    refused.append(one.reason)
+        for reason in refused:
+            show_warning(f"Edge profiles: line refused: {reason}")
+        parts = [old.subset(kept), *accepted]
+        profiles = EdgeProfiles.concatenate(parts)
+        if len(profiles) == 0 and not profiles.reason:
+            profiles = EdgeProfiles.empty("all profiles removed", old.offsets, old.image_shape,
+                                          old.max_blur)
+        origins = [old_origins[j] for j in kept] + ["hand"] * len(accepted)
+        self._render(rec, profiles, origins)
+        if accepted:  # select the new profiles, so the plot shows them
+            n = len(profiles)
+            rec.shapes.selected_data = set(range(n - len(accepted), n))
+        self._set_current(rec)
+
+    def _on_selection(self, *_args) -> None:
+        if not self._rendering:
+            self._refresh_view()
+
+    # -- view --------------------------------------------------------------------------------
+    def _refresh_view(self) -> None:
+        rec = self._current
+        if rec is None:
+            self.count_label.setText("no profiles")
+            self._plot(None, [])
+            return
+        profiles, origins = rec.profiles, rec.origins
+        n_hand = sum(o == "hand" for o in origins)
+        if len(profiles):
+            self.count_label.setText(
+                f"{len(profiles)} profiles in {rec.shapes.name!r}: "
+                f"{len(profiles) - n_hand} detected, {n_hand} by hand; "
+                f"median quality {np.median(profiles.quality):.2f}")
+        else:
+            self.count_label.setText(f"no profiles in {rec.shapes.name!r}")
+        selected = sorted(i for i in rec.shapes.selected_data if i < len(profiles))
+        self._plot(profiles, selected, origins)
+
+    def _plot(self, profiles: EdgeProfiles | None, selected, origins=()) -> None:
+        if not self._axes:
+            return
+        ax_p, ax_d = self._axes
+        for ax in self._axes:
+            for artist in list(ax.lines):
+                artist.remove()
+        fg = ax_p.xaxis.label.get_color()
+        ax_p.set_title("profile, alpha (Eq. 1)", fontsize=8)
+        ax_d.set_title("derivative (Eq. 11)", fontsize=8)
+        ax_p.set_xlabel("offset (px)", fontsize=8)
+        ax_d.set_xlabel("offset (px)", fontsize=8)
+        caption = "" if profiles is None else "no profiles"
+        if profiles is not None and len(profiles):
+            x = profiles.offsets
+            cmap = ensure_colormap(_QUALITY_CMAP)
+            if selected:
+                for i in selected[:_MAX_PLOTTED]:
+                    colour = cmap.map(np.array([np.clip(profiles.quality[i], 0, 1)]))[0]
+                    ax_p.plot(x, profiles.profiles[i], color=colour, lw=1.8)
+                    ax_d.plot(x, profiles.derivatives[i], color=colour, lw=1.8)
+                if len(selected) == 1:
+                    i = selected[0]
+                    how = "picked by hand" if origins and origins[i] == "hand" else "detected"
+                    caption = (f"profile {i} ({how}): quality {profiles.quality[i]:.2f}, "
+                               f"contrast {profiles.contrast[i]:.2f}")
+                else:
+                    caption = f"{len(selected)} selected profiles"
+            else:
+                show = np.arange(len(profiles))
+                if show.size > _MAX_PLOTTED:
+                    show = show[np.linspace(0, show.size - 1, _MAX_PLOTTED).round().astype(int)]
+                for i in show:
+                    ax_p.plot(x, profiles.profiles[i], color=fg, lw=0.6, alpha=0.25)
+                    ax_d.plot(x, profiles.derivatives[i], color=fg, lw=0.6, alpha=0.25)
+                ax_d.plot(x, np.median(profiles.derivatives, 0), color="#ff8c00", lw=2)
+                caption = (f"all {len(profiles)} profiles, median derivative in orange; "
+                           "select lines to inspect them")
+            for ax in self._axes:
+                ax.relim()
+                ax.autoscale_view()
+        self.plot_caption.setText(caption)
+        self.canvas.draw_idle()
+
+
+def _line_key(data) -> tuple:
+    """A hashable key of a line's vertices, tolerant to float round-off."""
+    return tuple(np.round(np.asarray(data, float).ravel(), 3).tolist())
