@@ -60,6 +60,8 @@ __all__ = [
     "plot_canvas",
     "snapshot_image",
     "spatial_kwargs",
+    "style_axes",
+    "theme_colours",
 ]
 
 logger = logging.getLogger(__name__)
@@ -511,7 +513,7 @@ def plot_canvas(viewer, n_axes: int, height: float = 2.6):
         label = QLabel("Install matplotlib to see plots here: pip install 'napari-edgecme[plot]'")
         label.setWordWrap(True)
         return label, []
-    fg, bg = _theme_colours(viewer)
+    fg, bg = theme_colours(viewer)
     fig = Figure(figsize=(3.6, height), layout="constrained", facecolor=bg)
     canvas = FigureCanvasQTAgg(fig)
     axes = list(np.atleast_1d(fig.subplots(1, n_axes)))
@@ -534,7 +536,7 @@ def style_axes(ax, fg: str, bg: str) -> None:
     ax.title.set_fontsize(8)
 
 
-def _theme_colours(viewer) -> tuple[str, str]:
+def theme_colours(viewer) -> tuple[str, str]:
     """``(foreground, background)`` of the viewer's theme, as hex strings."""
     try:
         from napari.utils.theme import get_theme

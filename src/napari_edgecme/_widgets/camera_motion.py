@@ -1,0 +1,432 @@
+"""The "Camera motion" widget: estimate how the camera shook from one blurred image.
+
+Runs :func:`~napari_edgecme.core.estimate.iter_estimate_motion` (EpAlone, Xu or
+Xu+Ep, paper Eqs. 19-22) in a worker thread, with a progress bar per scale and
+iteration and, for Xu and Xu+Ep, a live preview layer of the latent image as it
+refines. Results, aligned with the input image (same scale and translate):
+
+* ``"<image> PSF field"``: the local PSFs on a grid, drawn over the image (additive
+  blending), carrying the motion in ``metadata["edgecme_motion"]`` as the JSON dict
+  of the motion file, so it survives saving and feeds the "Deconvolution" widget;
+* ``"<image> latent"`` (Xu, Xu+Ep; hidden): the last latent estimate;
+* a plot of the motion density function in pose space (marker size = weight);
+* "Save motion…" writes the motion file (JSON).
+"""
+
+from __future__ import annotations
+
+import logging
+from functools import partial
+from pathlib import Path
+
+import napari
+import numpy as np
+from magicgui.widgets import ComboBox
+from napari.layers import Image, Shapes
+from napari.utils.notifications import show_error, show_info
+from qtpy.QtWidgets import (
+    QCheckBox,
+    QDoubleSpinBox,
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QSpinBox,
+    QVBoxLayout,
+    QWidget,
+)
+from superqt import QCollapsible
+
+from ..core.camera import param_names
+from ..core.edges import EdgeProfiles
+from ..core.estimate import DEFAULTS, MotionEstimate, iter_estimate_motion
+from ..core.motion import CameraMotion
+from ..core.progress import Progress
+from ._common import (
+    MOTION_KEY,
+    PROFILES_KEY,
+    SOURCE_KEY,
+    EngineRunner,
+    MaxBlurControl,
+    default_focal_px,
+    first_line,
+    focal_from_layer,
+    image_layers,
+    image_shape,
+    plot_canvas,
+    resampled_kwargs,
+    snapshot_image,
+    spatial_kwargs,
+    style_axes,
+    theme_colours,
+)
+
+__all__ = ["METHOD_CHOICES", "MODEL_CHOICES", "CameraMotionWidget", "psf_grid"]
+
+logger = logging.getLogger(__name__)
+
+#: Estimation methods as shown, with the engine's names.
+METHOD_CHOICES = [("Xu+Ep", "xu+ep"), ("Xu", "xu"), ("EpAlone", "ep")]
+#: Pose models as shown, with the engine's names.
+MODEL_CHOICES = [("rotation (3-D camera rotation)", "rotation"),
+                 ("in-plane (tx, ty, θz)", "inplane"),
+                 ("translation (uniform blur)", "translation")]
+_AUTO_PROFILES = ("detect automatically", None)
+#: Metadata key of a summary of the estimation run (method, parameters, timing).
+ESTIMATE_KEY = "edgecme_estimate"
+
+
+def psf_grid(shape, per_short_side: int = 5) -> tuple[int, int]:
+    """PSF sample grid ``(rows, cols)`` for a PSF-field image: square cells, ~5 per short side."""
+    rows, cols = shape[:2]
+    short = min(rows, cols)
+    return (max(1, round(per_short_side * rows / short)),
+            max(1, round(per_short_side * cols / short)))
+
+
+class CameraMotionWidget(QWidget):
+    """Estimate the camera motion of a blurred image layer.
+
+    Parameters
+    ----------
+    viewer : napari.viewer.Viewer
+        The viewer (or a :class:`napari.components.ViewerModel`).
+    """
+
+    def __init__(self, viewer: napari.viewer.Viewer, parent: QWidget | None = None):
+        super().__init__(parent)
+        self._viewer = viewer
+        self._preview: Image | None = None
+        self.last_motion: CameraMotion | None = None
+        self.last_estimate: MotionEstimate | None = None
+        self._last_name = ""
+
+        self.image_combo = ComboBox(label="image", choices=self._image_choices)
+        self.method_combo = ComboBox(label="method", choices=METHOD_CHOICES, value="xu+ep")
+        self.method_combo.native.setToolTip(
+            "Xu+Ep: L0 latent image plus edge profiles (Eq. 22); Xu: L0 latent image alone "
+            "(the baseline); EpAlone: edge profiles alone, no latent image (Eq. 19)")
+        self.model_combo = ComboBox(label="model", choices=MODEL_CHOICES, value="rotation")
+        self.max_blur = MaxBlurControl()
+        self.focal_auto = QCheckBox("auto")
+        self.focal_auto.setChecked(True)
+        self.focal_spin = QDoubleSpinBox()
+        self.focal_spin.setRange(1.0, 1e6)
+        self.focal_spin.setDecimals(1)
+        self.focal_spin.setSuffix(" px")
+        self.focal_spin.setEnabled(False)
+        self.focal_hint = QLabel("")
+        self.focal_hint.setWordWrap(True)
+        self.profiles_combo = ComboBox(label="profiles", choices=self._profile_choices)
+        self.profiles_combo.native.setToolTip(
+            "Edge profiles for EpAlone and Xu+Ep: detected automatically, or the set shown "
+            "in a layer of the 'Edge profiles' widget (with your hand picks)")
+        self.preview_check = QCheckBox("live preview of the latent image")
+        self.preview_check.setChecked(True)
+
+        # advanced parameters (paper Eqs. 19-22), engine defaults
+        self.lambda_w = _float_spin(DEFAULTS["lambda_w"], 0.0, 1.0, 5,
+                                    "L1 weight on the motion density (Eqs. 19, 22)")
+        self.lambda_ip = _float_spin(DEFAULTS["lambda_ip"], 0.0, 100.0, 3,
+                                     "weight of the edge-profile term in Xu+Ep (Eq. 22)")
+        self.lambda_f = _float_spin(DEFAULTS["lambda_f"], 1e-5, 1.0, 5,
+                                    "L0 weight of the latent update (Eq. 21)")
+        self.n_iter = _int_spin(DEFAULTS["n_iter"], 1, 100, "alternations per scale")
+        self.max_side = _int_spin(DEFAULTS["max_side"], 32, 16384,
+                                  "estimate on a copy whose longer side is at most this (px)")
+        self.seed = _int_spin(0, 0, 2**31 - 1, "seed of every random choice")
+        advanced = QCollapsible("Advanced")
+        adv = QWidget()
+        adv_form = QFormLayout(adv)
+        adv_form.addRow("λ_w (MDF sparsity)", self.lambda_w)
+        adv_form.addRow("λ_Ip (edge profiles)", self.lambda_ip)
+        adv_form.addRow("λ_f (L0 latent)", self.lambda_f)
+        adv_form.addRow("iterations per scale", self.n_iter)
+        adv_form.addRow("max working side", self.max_side)
+        adv_form.addRow("seed", self.seed)
+        advanced.addWidget(adv)
+        self.advanced = advanced
+
+        self.run_button = QPushButton("Run")
+        self.cancel_button = QPushButton("Cancel")
+        self.save_button = QPushButton("Save motion…")
+        self.save_button.setToolTip("Write the estimated motion as a JSON motion file")
+        self.save_button.setEnabled(False)
+        self.status = QLabel("")
+        self.status.setWordWrap(True)
+        self.canvas, axes = plot_canvas(viewer, 1, height=2.8)
+        self._has_plot = bool(axes)
+        self._colours = theme_colours(viewer)
+
+        focal_row = QHBoxLayout()
+        focal_row.addWidget(self.focal_spin, 1)
+        focal_row.addWidget(self.focal_auto)
+        form = QFormLayout()
+        form.addRow("image", self.image_combo.native)
+        form.addRow("method", self.method_combo.native)
+        form.addRow("model", self.model_combo.native)
+        form.addRow("max blur", self.max_blur)
+        form.addRow("focal length", focal_row)
+        form.addRow("", self.focal_hint)
+        form.addRow("profiles", self.profiles_combo.native)
+        form.addRow("", self.preview_check)
+        run_row = QHBoxLayout()
+        run_row.addWidget(self.run_button)
+        run_row.addWidget(self.cancel_button)
+        layout = QVBoxLayout(self)
+        layout.addLayout(form)
+        layout.addWidget(advanced)
+        layout.addLayout(run_row)
+        layout.addWidget(self.status)
+        layout.addWidget(self.canvas, 1)
+        layout.addWidget(self.save_button)
+
+        self.runner = EngineRunner(self, "Camera motion", self.run_button, self.cancel_button,
+                                   self.status)
+        self.run_button.clicked.connect(self.run)
+        self.save_button.clicked.connect(lambda: self.save_motion())
+        self.image_combo.changed.connect(self._on_image_changed)
+        self.method_combo.changed.connect(self._on_method_changed)
+        self.focal_auto.toggled.connect(self._on_focal_auto)
+        self.reset_choices()
+        self._on_method_changed(self.method_combo.value)
+        self._plot_motion(None)
+
+    # -- choices ---------------------------------------------------------------------------
+    def _image_choices(self, _widget=None):
+        return image_layers(self._viewer)
+
+    def _profile_choices(self, _widget=None):
+        return [_AUTO_PROFILES] + [
+            (layer.name, layer) for layer in self._viewer.layers
+            if isinstance(layer, Shapes) and layer.metadata.get(PROFILES_KEY) is not None]
+
+    def reset_choices(self, *_args) -> None:
+        """Refresh the layer choices (napari calls this when layers change)."""
+        self.image_combo.reset_choices()
+        self.profiles_combo.reset_choices()
+        self._on_image_changed(self.image_combo.value)
+
+    def _on_image_changed(self, layer) -> None:
+        if layer is None:
+            self.focal_hint.setText("")
+            return
+        shape = image_shape(layer)
+        self.max_blur.show_default_for(shape)
+        self._update_focal_hint()
+        if self.profiles_combo.value is None:  # offer the image's own hand-edited profiles
+            for _name, shapes in self._profile_choices()[1:]:
+                if shapes.metadata.get(SOURCE_KEY) == layer.name:
+                    self.profiles_combo.value = shapes
+                    break
+
+    def _on_method_changed(self, method) -> None:
+        uses_profiles = method != "xu"
+        self.profiles_combo.enabled = uses_profiles
+        self.lambda_ip.setEnabled(method == "xu+ep")
+        self.preview_check.setEnabled(method != "ep")
+
+    def _on_focal_auto(self, on: bool) -> None:
+        self.focal_spin.setEnabled(not on)
+        self._update_focal_hint()
+
+    def _update_focal_hint(self) -> None:
+        layer = self.image_combo.value
+        if layer is None:
+            return
+        if self.focal_auto.isChecked():
+            focal, source = focal_from_layer(layer)
+            value = focal if focal is not None else default_focal_px(image_shape(layer))
+            self.focal_spin.setValue(value)
+            self.focal_hint.setText(f"auto: {value:.1f} px, {source}")
+        else:
+            self.focal_hint.setText("manual (pixels of this image)")
+
+    # -- run -------------------------------------------------------------------------------
+    def run(self) -> None:
+        """Estimate the camera motion of the chosen image in a worker thread."""
+        image = self.image_combo.value
+        if image is None:
+            show_error("Camera motion: choose an image layer first")
+            return
+        method, model = self.method_combo.value, self.model_combo.value
+        try:
+            data = snapshot_image(image)
+            profiles = self._chosen_profiles(data.shape) if method != "xu" else None
+        except ValueError as err:
+            show_error(f"Camera motion: {first_line(err)}")
+            return
+        if self.focal_auto.isChecked():
+            focal_px = focal_from_layer(image)[0]
+        else:
+            focal_px = float(self.focal_spin.value())
+        max_blur = self.max_blur.value_for(data.shape)
+        preview = self.preview_check.isChecked() and method != "ep"
+        gen = iter_estimate_motion(
+            data, method, model, max_blur, focal_px, profiles,
+            lambda_w=self.lambda_w.value(), lambda_ip=self.lambda_ip.value(),
+            lambda_f=self.lambda_f.value(), n_iter=self.n_iter.value(),
+            max_side=self.max_side.value(), preview=preview, rng=self.seed.value())
+        self.runner.start(gen, on_result=partial(self._show_result, image),
+                          on_record=partial(self._show_preview, image), on_end=self._end)
+
+    def cancel(self) -> None:
+        """Stop the running estimation (nothing is added)."""
+        self.runner.cancel()
+
+    def _chosen_profiles(self, shape) -> EdgeProfiles | None:
+        layer = self.profiles_combo.value
+        if layer is None:
+            return None
+        profiles = layer.metadata.get(PROFILES_KEY)
+        if isinstance(profiles, dict):
+            profiles = EdgeProfiles.from_dict(profiles)
+        if not isinstance(profiles, EdgeProfiles):
+            raise ValueError(f"layer {layer.name!r} holds no edge profiles")
+        if profiles.image_shape is not None and tuple(profiles.image_shape) != tuple(shape[:2]):
+            raise ValueError(
+                f"the profiles in {layer.name!r} were taken on a "
+                f"{profiles.image_shape[0]}x{profiles.image_shape[1]} image; this image is "
+                f"{shape[0]}x{shape[1]}")
+        return profiles
+
+    # -- main-thread handlers -----------------------------------------------------------------
+    def _show_preview(self, image: Image, record: Progress) -> None:
+        latent = record.preview
+        if latent is None:
+            return
+        where = resampled_kwargs(image, latent.shape)
+        if self._preview is None or self._preview not in self._viewer.layers:
+            self._preview = Image(latent, name=f"{image.name} latent (preview)",
+                                  colormap="gray", contrast_limits=(0.0, 1.0),
+                                  metadata={SOURCE_KEY: image.name}, **where)
+            self._viewer.add_layer(self._preview)
+        else:
+            self._preview.data = latent
+            self._preview.scale = where["scale"]
+            self._preview.translate = where["translate"]
+
+    def _show_result(self, image: Image, estimate: MotionEstimate) -> str:
+        motion, info = estimate.motion, estimate.info
+        summary = {"method": info.method, "model": info.model, "max_blur": info.max_blur,
+                   "focal_px": info.focal_px, "n_profiles": info.n_profiles,
+                   "seconds": round(info.seconds, 3), "converged": info.converged,
+                   "message": info.message}
+        meta = {MOTION_KEY: motion.to_dict(), SOURCE_KEY: image.name, ESTIMATE_KEY: summary}
+        field = motion.psf_field(grid=psf_grid(motion.image_shape))
+        self._viewer.add_layer(Image(
+            field, name=f"{image.name} PSF field", colormap="inferno", blending="additive",
+            contrast_limits=(0.0, 1.0), metadata=dict(meta), **spatial_kwargs(image)))
+        if estimate.latent is not None:
+            latent_name = f"{image.name} latent"
+            where = resampled_kwargs(image, estimate.latent.shape)
+            if self._preview is not None and self._preview in self._viewer.layers:
+                layer, self._preview = self._preview, None  # the preview becomes the result
+                layer.data = estimate.latent
+                layer.scale, layer.translate = where["scale"], where["translate"]
+                layer.name = latent_name
+                layer.metadata.update(meta)
+            else:
+                layer = Image(estimate.latent, name=latent_name, colormap="gray",
+                              contrast_limits=(0.0, 1.0), metadata=dict(meta), **where)
+                self._viewer.add_layer(layer)
+            layer.visible = False
+        self.last_motion, self.last_estimate = motion, estimate
+        self._last_name = image.name
+        self.save_button.setEnabled(True)
+        self._plot_motion(motion)
+        text = (f"{motion.n_poses} poses, blur up to {motion.blur_extent():.1f} px "
+                f"({info.seconds:.1f} s)")
+        if info.message.startswith("fell back"):
+            text += f"; {info.message.split(';')[0]}"
+        return text
+
+    def _end(self, outcome: str) -> None:
+        # the live preview is transient: a cancelled or failed run leaves no layer behind
+        if outcome != "done" and self._preview is not None:
+            if self._preview in self._viewer.layers:
+                self._viewer.layers.remove(self._preview)
+        self._preview = None
+
+    # -- results ---------------------------------------------------------------------------
+    def save_motion(self, path: str | Path | None = None) -> Path | None:
+        """Write the last estimated motion as a JSON motion file (asks where when no ``path``)."""
+        if self.last_motion is None:
+            show_error("Camera motion: nothing to save; run an estimation first")
+            return None
+        if path is None:
+            path, _ = QFileDialog.getSaveFileName(self, "Save camera motion",
+                                                  f"{self._last_name}-motion.json",
+                                                  "JSON files (*.json)")
+            if not path:
+                return None
+        path = Path(path)
+        try:
+            self.last_motion.save(path)
+        except OSError as err:
+            show_error(f"Camera motion: cannot save {path}: {first_line(err)}")
+            return None
+        show_info(f"Camera motion: saved to {path}")
+        return path
+
+    def _plot_motion(self, motion: CameraMotion | None) -> None:
+        """The motion density function in pose space: marker area = weight."""
+        if not self._has_plot:
+            return
+        fg, bg = self._colours
+        figure = self.canvas.figure
+        figure.clear()  # drops the previous run's axes and colour bar
+        ax = figure.add_subplot()
+        style_axes(ax, fg, bg)
+        if motion is None:
+            ax.set_title("motion in pose space (run an estimation)", fontsize=8)
+            self.canvas.draw_idle()
+            return
+        names = param_names(motion.model)
+        poses = np.array(motion.poses, float)
+        labels = []
+        for k, name in enumerate(names):
+            if name.startswith("theta"):
+                poses[:, k] *= 1e3
+                labels.append(f"{name} (mrad)")
+            else:
+                labels.append(f"{name} (px)")
+        weights = np.asarray(motion.weights, float)
+        sizes = 4 + 80 * weights / weights.max()
+        order = np.argsort(weights)
+        if poses.shape[1] == 3:
+            points = ax.scatter(poses[order, 0], poses[order, 1], s=sizes[order],
+                                c=poses[order, 2], cmap="viridis", edgecolors="none")
+            bar = figure.colorbar(points, ax=ax, shrink=0.9)
+            bar.set_label(labels[2], color=fg, fontsize=8)
+            bar.ax.tick_params(colors=fg, labelsize=7)
+            bar.outline.set_edgecolor(fg)
+        else:
+            ax.scatter(poses[order, 0], poses[order, 1], s=sizes[order], color="#ff8c00",
+                       edgecolors="none")
+        ax.set_xlabel(labels[0], fontsize=8)
+        ax.set_ylabel(labels[1], fontsize=8)
+        ax.set_title(f"motion density: {motion.n_poses} poses (area = weight)", fontsize=8)
+        ax.relim()
+        ax.autoscale_view()
+        ax.set_aspect("equal", adjustable="datalim")
+        self.canvas.draw_idle()
+
+
+def _float_spin(value: float, low: float, high: float, decimals: int, tip: str) -> QDoubleSpinBox:
+    spin = QDoubleSpinBox()
+    spin.setRange(low, high)
+    spin.setDecimals(decimals)
+    spin.setStepType(QDoubleSpinBox.StepType.AdaptiveDecimalStepType)
+    spin.setValue(value)
+    spin.setToolTip(tip)
+    return spin
+
+
+def _int_spin(value: int, low: int, high: int, tip: str) -> QSpinBox:
+    spin = QSpinBox()
+    spin.setRange(low, high)
+    spin.setValue(value)
+    spin.setToolTip(tip)
+    return spin
