@@ -72,6 +72,8 @@ DEFAULTS = {
 _PYRAMID_RATIO = 1.0 / math.sqrt(2.0)
 _LASSO_MAX_ITER = 200
 _GRADIENT_SMOOTHING = 1.5
+_LAMBDA_F_SCALING = 1.0
+_ROLL_FROM_BLUR = 0.0  # levels whose blur (px) is below this keep theta_z = 0
 _SALIENT_START = 0.1  # share of latent gradients used by the first MDF update of a scale
 _WEIGHT_FLOOR = 1.0 / 20.0  # drop weights below this fraction of the largest (Whyte et al.)
 
@@ -188,7 +190,10 @@ class _Level:
         self.intrinsics = intrinsics
         self.model = model
         self.max_blur = max_blur
-        self.grid: PoseGrid = pose_grid(model, intrinsics, max_blur)
+        # roll (theta_z) barely changes the PSFs of a small image: keep it fixed at the
+        # coarse levels, where freeing it only adds ambiguity
+        roll = 0.5 if max_blur >= _ROLL_FROM_BLUR else 0.0
+        self.grid: PoseGrid = pose_grid(model, intrinsics, max_blur, roll_fraction=roll)
 
     def motion(self, weights_grid: np.ndarray) -> CameraMotion:
         keep = weights_grid.ravel() > 0
@@ -375,7 +380,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             ep_images = None
             if work_profiles is not None and (method == "ep" or lambda_ip > 0):
                 ep_images = _edge_images(level, work_profiles, s)
-            lam_f = lambda_f
+            lam_f = lambda_f * s ** -_LAMBDA_F_SCALING  # coarse levels: sharper edges, larger weight
             for it in range(n_iter):
                 if method != "ep":
                     latent = l0_latent(level.blurred, level.motion(weights), lam_f)

@@ -93,17 +93,21 @@ def gradient_term(latent, observed, grid: PatchGrid, basis: sp.csr_matrix,
     cross = _lag_window((np.conj(pf) * pg).sum(0), grid, h)  # (R, K, K): sum_t p(t) d(t+u)
     energy = float(np.sum(observed_patches.astype(np.float64) ** 2))
     scale = weight / max(energy, 1e-30)
-    L = sfft.next_fast_len(3 * K - 2, real=True)  # small: one thread beats the pool
-    auto_hat = sfft.rfft2(auto.astype(np.float64), s=(L, L), axes=(-2, -1))
-    B = basis.astype(np.float64)
+    # Q_r k = auto_r (*) k restricted to the K x K support: a circular convolution of
+    # size M >= 2K - 1 is exact there (each lag within +-(K-1) has a distinct residue)
+    M = sfft.next_fast_len(2 * K - 1, real=True)
+    circ = np.zeros((grid.n_patches, M, M), np.float32)
+    circ[:, :2 * K - 1, :2 * K - 1] = auto
+    auto_hat = sfft.rfft2(np.roll(circ, (-(K - 1), -(K - 1)), axis=(1, 2)), axes=(-2, -1))
+    B = basis.astype(np.float32)
     BT = B.T.tocsr()
     n_patches = grid.n_patches
 
-    def matvec(w):
-        k = (B @ w).reshape(n_patches, K, K)
-        conv = sfft.irfft2(sfft.rfft2(k, s=(L, L), axes=(-2, -1)) * auto_hat,
-                           s=(L, L), axes=(-2, -1))
-        return scale * (BT @ conv[:, K - 1:2 * K - 1, K - 1:2 * K - 1].reshape(-1))
+    def matvec(w):  # small FFTs: one thread beats the pool
+        k = (B @ w.astype(np.float32)).reshape(n_patches, K, K)
+        conv = sfft.irfft2(sfft.rfft2(k, s=(M, M), axes=(-2, -1)) * auto_hat,
+                           s=(M, M), axes=(-2, -1))
+        return scale * (BT @ conv[:, :K, :K].reshape(-1)).astype(np.float64)
 
     linear = scale * (BT @ cross.reshape(-1).astype(np.float64))
     return QuadraticTerm(matvec, linear, scale * energy)
