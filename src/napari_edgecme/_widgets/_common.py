@@ -9,11 +9,20 @@ The rules it enforces (napari's threading model):
 
 * the worker only sees plain data (arrays snapshotted on the main thread with
   :func:`snapshot_image` and parameters); it never touches a layer or a widget;
-* every handler (``yielded``, ``returned``, ``errored``, ``aborted``, ``finished``)
-  runs on the main thread, where layers are created and updated;
-* bad input -- the engine's documented one-line ``ValueError`` -- becomes a napari
-  error notification with that line; anything else is an unexpected failure and
-  is relayed by napari's worker with its traceback.
+* every handler (``yielded``, ``returned``, ``warned``, ``errored``, ``aborted``,
+  ``finished``) runs on the main thread, where layers are created and updated;
+* failures become exactly one napari error notification: bad input -- the engine's
+  documented one-line ``ValueError`` -- shows that line; any other exception is a
+  bug and shows its type and message, with the traceback in the log; engine
+  warnings (e.g. Xu+Ep falling back to Xu) become warning notifications.
+
+Exceptions are caught inside the worker (:func:`_relay`) and handed back as a
+:class:`Failed` result rather than left to the worker's ``errored`` signal, for two
+reasons seen with napari 0.9 / superqt: a ``RuntimeError`` escaping a generator
+worker is taken for a deleted Qt object and the worker never emits ``finished``
+(the UI would stay "running"); and whether napari's worker relays errors and
+warnings to notifications itself depends on its version. The worker class is
+superqt's plain ``GeneratorWorker``, so this module alone decides what is shown.
 
 The rest are small helpers: layer-metadata keys, layer choices, spatial transforms,
 focal length from metadata/EXIF, a "max blur" control and themed matplotlib canvases.
@@ -29,9 +38,9 @@ from pathlib import Path
 
 import numpy as np
 from napari.layers import Image, Layer
-from napari.qt.threading import GeneratorWorker, create_worker
+from napari.qt.threading import create_worker
 from napari.utils import progress
-from napari.utils.notifications import show_error, show_info
+from napari.utils.notifications import show_error, show_info, show_warning
 from qtpy.QtWidgets import (
     QCheckBox,
     QDoubleSpinBox,
@@ -40,6 +49,7 @@ from qtpy.QtWidgets import (
     QPushButton,
     QWidget,
 )
+from superqt.utils import GeneratorWorker
 
 from ..core.camera import DEFAULT_FOCAL_35MM
 from ..core.estimate import default_max_blur
@@ -228,9 +238,19 @@ def _exif_focal_35mm(path) -> float | None:
 
 @dataclass(frozen=True)
 class Failed:
-    """What a run returns when the engine refused its input (a one-line ``ValueError``)."""
+    """What a run returns when the engine raised instead of returning a result.
+
+    Attributes
+    ----------
+    message : str
+        One line for the user.
+    error : Exception or None
+        The exception of an unexpected failure (a bug), kept for its traceback;
+        None when the engine refused its input (a ``ValueError``).
+    """
 
     message: str
+    error: Exception | None = None
 
 
 def first_line(err: BaseException) -> str:
@@ -241,15 +261,16 @@ def first_line(err: BaseException) -> str:
 def _relay(gen: Generator):
     """Runs in the worker thread: relay an engine generator's records and result.
 
-    The engine's bad-input error, a one-line ``ValueError``, is returned as
-    :class:`Failed` so that the main thread can show that line; any other exception
-    propagates to the worker's ``errored`` signal (napari relays it with its traceback).
+    Exceptions come back as a :class:`Failed` result (see the module notes). Closing
+    this generator (``GeneratorExit``) is not an exception and closes ``gen`` too.
     """
     try:
         return (yield from gen)
-    except ValueError as err:
-        logger.debug("engine refused the input", exc_info=True)
+    except ValueError as err:  # the engine's documented "bad input" error
+        logger.debug("the engine refused the input", exc_info=True)
         return Failed(first_line(err))
+    except Exception as err:
+        return Failed(f"{type(err).__name__}: {first_line(err)}", err)
 
 
 class EngineRunner:
@@ -332,10 +353,10 @@ class EngineRunner:
         self._outcome = ""
         self.progress_bar = progress(total=0, desc=self.title)
         worker = create_worker(
-            _relay, gen, _start_thread=False,
+            _relay, gen, _start_thread=False, _worker_class=GeneratorWorker,
             _connect={"yielded": self._on_yielded, "returned": self._on_returned,
-                      "errored": self._on_errored, "aborted": self._on_aborted,
-                      "finished": self._on_finished})
+                      "warned": self._on_warned, "errored": self._on_errored,
+                      "aborted": self._on_aborted, "finished": self._on_finished})
         self._worker = worker
         self._run_button.setEnabled(False)
         self._cancel_button.setEnabled(True)
@@ -371,7 +392,14 @@ class EngineRunner:
     def _on_returned(self, result) -> None:
         if isinstance(result, Failed):
             self._outcome = "failed"
-            show_error(f"{self.title}: {result.message}")
+            if result.error is None:
+                show_error(f"{self.title}: {result.message}")
+            else:
+                err = result.error
+                logger.error("%s failed", self.title, exc_info=(type(err), err,
+                                                                 err.__traceback__))
+                show_error(f"{self.title} failed unexpectedly: {result.message} "
+                           "(the traceback is in the log)")
             if self._alive:
                 self._status.setText(f"{self.title} failed: {result.message}")
             return
@@ -380,9 +408,14 @@ class EngineRunner:
             summary = self._on_result(result)
             self._status.setText(f"{self.title}: {summary or 'done'}")
 
+    def _on_warned(self, showwarning_args: tuple) -> None:
+        message = showwarning_args[0] if showwarning_args else ""
+        show_warning(f"{self.title}: {message}")
+
     def _on_errored(self, exc: BaseException) -> None:
-        # napari's worker has already relayed it as an error notification (with traceback)
+        # only what _relay cannot catch (BaseException) gets here
         self._outcome = "failed"
+        show_error(f"{self.title} failed: {type(exc).__name__}: {first_line(exc)}")
         if self._alive:
             self._status.setText(f"{self.title} failed: {first_line(exc)}")
 

@@ -411,10 +411,10 @@ class EdgeProfilesWidget(QWidget):
         measured with :func:`profile_along_line` and kept or refused.
         """
         old, old_origins = rec.profiles, rec.origins
-        index = {_line_key(line): i for i, line in enumerate(profile_lines(old))}
+        finder = _LineFinder(profile_lines(old))
         kept, picks = [], []
         for data, kind in zip(rec.shapes.data, rec.shapes.shape_type, strict=True):
-            j = index.get(_line_key(data)) if kind == "line" else None
+            j = finder.pop(data) if kind == "line" else None
             if j is not None:
                 kept.append(j)
             else:
@@ -520,6 +520,26 @@ class EdgeProfilesWidget(QWidget):
         self.canvas.draw_idle()
 
 
-def _line_key(data) -> tuple:
-    """A hashable key of a line's vertices, tolerant to float round-off."""
-    return tuple(np.round(np.asarray(data, float).ravel(), 3).tolist())
+class _LineFinder:
+    """Finds which profile drew a line (napari keeps shape vertices as float32)."""
+
+    #: Lines whose end points are this close (px) are the same line.
+    TOLERANCE = 0.01
+
+    def __init__(self, lines: np.ndarray):
+        from scipy.spatial import cKDTree
+
+        self._lines = np.asarray(lines, float).reshape(-1, 4)
+        self._tree = cKDTree(self._lines) if len(self._lines) else None
+        self._used: set[int] = set()
+
+    def pop(self, data) -> int | None:
+        """Index of the unused profile line equal to ``data`` (2, 2), or None."""
+        vertices = np.asarray(data, float)
+        if self._tree is None or vertices.shape != (2, 2):
+            return None
+        for j in self._tree.query_ball_point(vertices.ravel(), self.TOLERANCE, p=np.inf):
+            if j not in self._used:
+                self._used.add(j)
+                return int(j)
+        return None

@@ -1,0 +1,78 @@
+"""Fixtures of the napari widget tests.
+
+Two kinds of test live here (see ../../../shared/TESTING.md):
+
+* ``@pytest.mark.gui``: widgets built against ``napari.components.ViewerModel`` (no GL
+  canvas), driven with pytest-qt on the offscreen platform;
+* ``@pytest.mark.viewer``: a few tests in a real ``napari.Viewer`` made by
+  ``make_napari_viewer_proxy``, on a virtual X display (pytest-xvfb).
+
+Runs are awaited by polling state (``qtbot.waitUntil``), never by connecting to a
+worker signal after it started.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from napari_edgecme.core.synth import SyntheticCase, edge_scene, make_case, sample_image
+
+#: Where tests leave files for people to look at (git-ignored).
+ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
+
+#: A run of the engine on the small test images takes well under this (ms).
+RUN_TIMEOUT = 30_000
+
+
+@pytest.fixture(scope="session")
+def edge_case() -> SyntheticCase:
+    """A 112 px edge scene with a small in-plane shake (many clean edge profiles)."""
+    return make_case(edge_scene((112, 112), rng=0), "inplane", extent=5.0, rng=0,
+                     name="edges-112")
+
+
+@pytest.fixture(scope="session")
+def photo_case() -> SyntheticCase:
+    """A 96 px photo with an in-plane shake (the engine's deconvolution doctest case)."""
+    return make_case(sample_image("camera", 96), "inplane", extent=9.0, rng=0,
+                     name="camera-96")
+
+
+@pytest.fixture
+def viewer_model():
+    from napari.components import ViewerModel
+
+    return ViewerModel()
+
+
+class Notifications(list):
+    """napari notifications received during a test, in order."""
+
+    def texts(self, severity: str | None = None) -> list[str]:
+        """Their messages, optionally only those of one severity ("error", "warning", ...)."""
+        return [str(n.message) for n in self
+                if severity is None or str(n.severity).lower() == severity]
+
+
+@pytest.fixture
+def notifications() -> Notifications:
+    """Every napari notification dispatched during the test."""
+    from napari.utils.notifications import notification_manager
+
+    received = Notifications()
+    notification_manager.notification_ready.connect(received.append)
+    yield received
+    notification_manager.notification_ready.disconnect(received.append)
+
+
+@pytest.fixture
+def wait_for_run(qtbot):
+    """``wait_for_run(widget)``: poll until the widget's run has ended (Run re-enabled)."""
+
+    def wait(widget, timeout: int = RUN_TIMEOUT) -> None:
+        qtbot.waitUntil(lambda: not widget.runner.is_running, timeout=timeout)
+        assert widget.runner.progress_bar is None
+
+    return wait
