@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from napari_edgecme.core.synth import SyntheticCase, edge_scene, make_case, sample_image
@@ -69,10 +70,33 @@ def notifications() -> Notifications:
 
 @pytest.fixture
 def wait_for_run(qtbot):
-    """``wait_for_run(widget)``: poll until the widget's run has ended (Run re-enabled)."""
+    """``wait_for_run(widget)``: poll until a widget's run (or a runner's) has ended."""
 
     def wait(widget, timeout: int = RUN_TIMEOUT) -> None:
-        qtbot.waitUntil(lambda: not widget.runner.is_running, timeout=timeout)
-        assert widget.runner.progress_bar is None
+        runner = getattr(widget, "runner", widget)
+        qtbot.waitUntil(lambda: not runner.is_running, timeout=timeout)
+        assert runner.progress_bar is None
 
     return wait
+
+
+@pytest.fixture
+def assert_same_motion():
+    """``assert_same_motion(a, b)``: equal up to the round-off of a JSON round trip."""
+
+    def check(a, b) -> None:
+        assert a.model == b.model and a.intrinsics == b.intrinsics
+        np.testing.assert_allclose(a.poses, b.poses, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(a.weights, b.weights, rtol=1e-12, atol=1e-15)
+
+    return check
+
+
+@pytest.fixture(scope="session")
+def plugins():
+    """npe2's plugin manager with the installed plugins (napari's builtins, this one)."""
+    from npe2 import PluginManager
+
+    manager = PluginManager.instance()
+    manager.discover()
+    return manager

@@ -144,12 +144,12 @@ def test_selecting_a_line_plots_its_profile_and_derivative(detected):
     assert d.widget.plot_caption.text().startswith(f"all {len(profiles)} profiles")
     d.shapes.selected_data = {3}
     assert d.widget.plot_caption.text().startswith("profile 3 (detected)")
-    ax_profile, ax_derivative = d.widget._axes
-    (line_p,) = ax_profile.lines
-    (line_d,) = ax_derivative.lines
-    np.testing.assert_allclose(line_p.get_ydata(), profiles.profiles[3])
-    np.testing.assert_allclose(line_d.get_ydata(), profiles.derivatives[3])
-    np.testing.assert_allclose(line_d.get_xdata(), profiles.offsets)
+    ax_profile, ax_derivative = d.widget.canvas.figure.axes
+    (curve_p,) = ax_profile.collections[0].get_segments()
+    (curve_d,) = ax_derivative.collections[0].get_segments()
+    np.testing.assert_allclose(curve_p[:, 1], profiles.profiles[3])
+    np.testing.assert_allclose(curve_d[:, 1], profiles.derivatives[3])
+    np.testing.assert_allclose(curve_d[:, 0], profiles.offsets)
 
 
 def test_export_writes_the_profile_set_as_json(detected, tmp_path):

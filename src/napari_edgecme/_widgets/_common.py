@@ -547,7 +547,9 @@ def plot_canvas(viewer, n_axes: int, height: float = 2.6):
         label.setWordWrap(True)
         return label, []
     fg, bg = theme_colours(viewer)
-    fig = Figure(figsize=(3.6, height), layout="constrained", facecolor=bg)
+    # fixed margins: a constrained layout would cost more than the drawing itself
+    fig = Figure(figsize=(3.6, height), facecolor=bg)
+    fig.subplots_adjust(left=0.15, right=0.97, bottom=0.17, top=0.9, wspace=0.4)
     canvas = FigureCanvasQTAgg(fig)
     axes = list(np.atleast_1d(fig.subplots(1, n_axes)))
     for ax in axes:

@@ -276,6 +276,7 @@ class EdgeProfilesWidget(QWidget):
                          f"{detected.reason}")
             if rec is not None:
                 self._render(rec, detected, [])
+                self._set_current(rec)
             return f"no profiles ({detected.reason})"
         profiles = EdgeProfiles.concatenate([detected, hand]) if len(hand) else detected
         origins = ["detected"] * len(detected) + ["hand"] * len(hand)
@@ -335,8 +336,6 @@ class EdgeProfilesWidget(QWidget):
         points.features = {"quality": profiles.quality, "origin": origins}
         if len(profiles):
             points.face_color = colours
-        if rec is self._current:
-            self._refresh_view()
 
     # -- attached profile layers -------------------------------------------------------------
     def _attach(self, shapes: Shapes, image: Image, points: Points | None) -> _ProfileLayers:
@@ -449,7 +448,11 @@ class EdgeProfilesWidget(QWidget):
         self._render(rec, profiles, origins)
         if accepted:  # select the new profiles, so the plot shows them
             n = len(profiles)
-            rec.shapes.selected_data = set(range(n - len(accepted), n))
+            self._rendering = True
+            try:
+                rec.shapes.selected_data = set(range(n - len(accepted), n))
+            finally:
+                self._rendering = False
         self._set_current(rec)
 
     def _on_selection(self, *_args) -> None:
@@ -476,11 +479,14 @@ class EdgeProfilesWidget(QWidget):
         self._plot(profiles, selected, origins)
 
     def _plot(self, profiles: EdgeProfiles | None, selected, origins=()) -> None:
+        """Selected profiles in their quality colour, or all of them with the median."""
         if not self._axes:
             return
+        from matplotlib.collections import LineCollection
+
         ax_p, ax_d = self._axes
         for ax in self._axes:
-            for artist in list(ax.lines):
+            for artist in [*ax.lines, *ax.collections]:
                 artist.remove()
         fg = ax_p.xaxis.label.get_color()
         ax_p.set_title("profile, alpha (Eq. 1)", fontsize=8)
@@ -490,12 +496,11 @@ class EdgeProfilesWidget(QWidget):
         caption = "" if profiles is None else "no profiles"
         if profiles is not None and len(profiles):
             x = profiles.offsets
-            cmap = ensure_colormap(_QUALITY_CMAP)
             if selected:
-                for i in selected[:_MAX_PLOTTED]:
-                    colour = cmap.map(np.array([np.clip(profiles.quality[i], 0, 1)]))[0]
-                    ax_p.plot(x, profiles.profiles[i], color=colour, lw=1.8)
-                    ax_d.plot(x, profiles.derivatives[i], color=colour, lw=1.8)
+                show = np.asarray(selected[:_MAX_PLOTTED])
+                colours = ensure_colormap(_QUALITY_CMAP).map(
+                    np.clip(profiles.quality[show], 0, 1))
+                style = {"colors": colours, "linewidths": 1.8}
                 if len(selected) == 1:
                     i = selected[0]
                     how = "picked by hand" if origins and origins[i] == "hand" else "detected"
@@ -507,15 +512,17 @@ class EdgeProfilesWidget(QWidget):
                 show = np.arange(len(profiles))
                 if show.size > _MAX_PLOTTED:
                     show = show[np.linspace(0, show.size - 1, _MAX_PLOTTED).round().astype(int)]
-                for i in show:
-                    ax_p.plot(x, profiles.profiles[i], color=fg, lw=0.6, alpha=0.25)
-                    ax_d.plot(x, profiles.derivatives[i], color=fg, lw=0.6, alpha=0.25)
+                style = {"colors": fg, "linewidths": 0.6, "alpha": 0.3}
                 ax_d.plot(x, np.median(profiles.derivatives, 0), color="#ff8c00", lw=2)
                 caption = (f"all {len(profiles)} profiles, median derivative in orange; "
                            "select lines to inspect them")
-            for ax in self._axes:
-                ax.relim()
-                ax.autoscale_view()
+            for ax, curves in ((ax_p, profiles.profiles), (ax_d, profiles.derivatives)):
+                segments = np.stack([np.broadcast_to(x, (show.size, x.size)), curves[show]], -1)
+                ax.add_collection(LineCollection(segments, **style))
+                ax.set_xlim(x[0], x[-1])
+            top = float(profiles.derivatives[show].max()) if show.size else 1.0
+            ax_p.set_ylim(-0.05, 1.05)
+            ax_d.set_ylim(0.0, 1.08 * max(top, 1e-3))
         self.plot_caption.setText(caption)
         self.canvas.draw_idle()
 

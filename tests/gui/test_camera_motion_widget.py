@@ -1,0 +1,198 @@
+"""The "Camera motion" widget, offscreen against a ViewerModel (no GL canvas)."""
+
+from __future__ import annotations
+
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from napari.utils import progress
+
+from napari_edgecme._widgets.camera_motion import CameraMotionWidget, psf_grid
+from napari_edgecme.core.estimate import DEFAULTS, default_max_blur
+from napari_edgecme.core.motion import CameraMotion
+
+pytestmark = pytest.mark.gui
+
+SCALE, TRANSLATE = (0.5, 0.5), (10.0, -4.0)
+
+
+def make_widget(qtbot, viewer, image, *, method="xu", n_iter=1) -> CameraMotionWidget:
+    widget = CameraMotionWidget(viewer)
+    qtbot.addWidget(widget)
+    widget.reset_choices()  # what napari does for a docked widget when layers change
+    widget.image_combo.value = image
+    widget.method_combo.value = method
+    widget.model_combo.value = "inplane"
+    widget.max_blur.auto.setChecked(False)
+    widget.max_blur.spin.setValue(7)
+    widget.n_iter.setValue(n_iter)  # in the "advanced" fold: keeps the suite fast
+    return widget
+
+
+@pytest.fixture
+def setup(qtbot, viewer_model, edge_case):
+    image = viewer_model.add_image(edge_case.blurred, name="shaken", scale=SCALE,
+                                   translate=TRANSLATE)
+    return SimpleNamespace(viewer=viewer_model, image=image,
+                           widget=make_widget(qtbot, viewer_model, image))
+
+
+def test_defaults_are_the_engines(qtbot, viewer_model, edge_case):
+    image = viewer_model.add_image(edge_case.blurred, name="shaken")
+    widget = CameraMotionWidget(viewer_model)
+    qtbot.addWidget(widget)
+    widget.reset_choices()
+    assert widget.image_combo.value is image
+    assert widget.method_combo.value == "xu+ep"
+    assert widget.model_combo.value == "rotation"
+    assert widget.max_blur.auto.isChecked()
+    assert widget.max_blur.spin.value() == default_max_blur(edge_case.blurred.shape)
+    assert widget.focal_auto.isChecked()
+    assert widget.profiles_combo.value is None  # detect automatically
+    assert widget.lambda_w.value() == pytest.approx(DEFAULTS["lambda_w"])
+    assert widget.lambda_ip.value() == pytest.approx(DEFAULTS["lambda_ip"])
+    assert widget.lambda_f.value() == pytest.approx(DEFAULTS["lambda_f"])
+    assert widget.n_iter.value() == DEFAULTS["n_iter"]
+    assert widget.max_side.value() == DEFAULTS["max_side"]
+    assert not widget.advanced.isExpanded()
+    assert not widget.cancel_button.isEnabled() and not widget.save_button.isEnabled()
+
+
+def test_a_run_adds_an_aligned_psf_field_and_latent_carrying_the_motion(setup, wait_for_run,
+                                                                       tmp_path):
+    s = setup
+    s.widget.run_button.click()
+    assert not s.widget.run_button.isEnabled()  # disabled while running
+    wait_for_run(s.widget)
+    assert s.widget.runner.outcome == "done"
+    assert s.widget.run_button.isEnabled() and not s.widget.cancel_button.isEnabled()
+    assert [layer.name for layer in s.viewer.layers] == [
+        "shaken", "shaken latent", "shaken PSF field"]
+
+    field, latent = s.viewer.layers["shaken PSF field"], s.viewer.layers["shaken latent"]
+    motion = CameraMotion.from_dict(field.metadata["edgecme_motion"])
+    assert motion == s.widget.last_motion
+    assert motion.model == "inplane" and motion.image_shape == (112, 112)
+    assert np.isclose(sum(motion.weights), 1.0)
+    assert CameraMotion.from_dict(latent.metadata["edgecme_motion"]) == motion
+
+    # the PSF field is the motion's, drawn over the image: same grid, scale and translate
+    assert field.data.dtype == np.float32 and field.data.shape == (112, 112)
+    np.testing.assert_array_equal(field.data, motion.psf_field(grid=psf_grid((112, 112))))
+    assert field.blending == "additive"
+    for layer in (field, latent):
+        np.testing.assert_allclose(layer.scale, SCALE)
+        np.testing.assert_allclose(layer.translate, TRANSLATE)
+    assert not latent.visible
+    assert field.metadata["edgecme_estimate"]["method"] == "xu"
+
+    # the pose-space view shows every pose, and the motion saves as a motion file
+    scatter = s.widget.canvas.figure.axes[0].collections[0]
+    assert len(scatter.get_offsets()) == motion.n_poses
+    assert s.widget.save_button.isEnabled()
+    assert CameraMotion.load(s.widget.save_motion(tmp_path / "m.json")) == motion
+    assert f"{motion.n_poses} poses" in s.widget.status.text()
+
+
+def test_the_latent_preview_updates_while_xu_refines(qtbot, setup, wait_for_run):
+    s = setup
+    s.widget.n_iter.setValue(3)
+    inserted, updates = [], []
+    s.viewer.layers.events.inserted.connect(lambda event: inserted.append(event.value))
+
+    s.widget.run_button.click()
+    qtbot.waitUntil(lambda: len(inserted) > 0)
+    preview = inserted[0]
+    assert preview.name == "shaken latent (preview)"
+    preview.events.data.connect(lambda _event: updates.append(1))
+    wait_for_run(s.widget)
+    assert len(updates) >= 2  # refined twice more, then replaced by the final latent
+    assert preview.name == "shaken latent"  # the preview became the result
+    assert preview is s.viewer.layers["shaken latent"]
+
+
+def test_cancel_mid_run_stops_quickly_and_leaves_no_layer(qtbot, setup, notifications):
+    s = setup
+    s.widget.n_iter.setValue(60)  # about ten seconds of work
+    s.widget.run_button.click()
+    qtbot.waitUntil(lambda: s.widget.runner.progress_bar is not None
+                    and s.widget.runner.progress_bar.n >= 1)
+    bar = s.widget.runner.progress_bar
+    assert bar in progress._all_instances  # what napari's activity dock shows
+    assert any(layer.name.endswith("(preview)") for layer in s.viewer.layers)
+
+    start = time.perf_counter()
+    s.widget.cancel_button.click()
+    qtbot.waitUntil(lambda: not s.widget.runner.is_running, timeout=5000)
+    assert time.perf_counter() - start < 1.5
+    assert s.widget.runner.outcome == "cancelled"
+    assert [layer.name for layer in s.viewer.layers] == ["shaken"]  # preview removed too
+    assert s.widget.run_button.isEnabled() and not s.widget.cancel_button.isEnabled()
+    assert s.widget.runner.progress_bar is None and bar not in progress._all_instances
+    assert s.widget.last_motion is None
+    assert "Camera motion: cancelled" in notifications.texts("info")
+
+
+def test_epalone_on_an_image_without_edges_notifies_and_adds_no_layer(qtbot, viewer_model,
+                                                                      notifications,
+                                                                      wait_for_run):
+    flat = viewer_model.add_image(np.full((96, 96), 0.5, np.float32), name="flat")
+    widget = make_widget(qtbot, viewer_model, flat, method="ep")
+    widget.run_button.click()
+    wait_for_run(widget)
+    assert widget.runner.outcome == "failed"
+    assert [layer.name for layer in viewer_model.layers] == ["flat"]
+    errors = notifications.texts("error")
+    assert len(errors) == 1 and "EpAlone needs at least 12 usable edge profiles" in errors[0]
+    assert widget.run_button.isEnabled() and not widget.save_button.isEnabled()
+
+
+def test_bad_input_is_refused_with_the_engines_reason(setup, notifications, wait_for_run):
+    s = setup
+    s.widget.max_blur.spin.setValue(80)  # more than half the 112 px image
+    s.widget.run_button.click()
+    wait_for_run(s.widget)
+    assert s.widget.runner.outcome == "failed"
+    assert [layer.name for layer in s.viewer.layers] == ["shaken"]
+    (error,) = notifications.texts("error")
+    assert error == ("Camera motion: max_blur must be less than half the smaller image side "
+                     "(56 px); got 80")
+    assert "max_blur must be less than half" in s.widget.status.text()
+
+
+def test_focal_length_from_metadata_exif_tag_or_manual(qtbot, viewer_model, edge_case,
+                                                       wait_for_run):
+    meta = viewer_model.add_image(edge_case.blurred, name="meta", metadata={"focal_px": 321.0})
+    exif = viewer_model.add_image(edge_case.blurred, name="exif",
+                                  metadata={"exif": {"FocalLengthIn35mmFilm": 50}})
+    widget = make_widget(qtbot, viewer_model, meta)
+    assert widget.focal_spin.value() == pytest.approx(321.0)
+    assert "layer metadata" in widget.focal_hint.text()
+    widget.image_combo.value = exif
+    assert widget.focal_spin.value() == pytest.approx(50 / 36 * 112, abs=0.05)
+    assert "50 mm equivalent" in widget.focal_hint.text()
+
+    widget.focal_auto.setChecked(False)
+    widget.focal_spin.setValue(200.0)
+    widget.run_button.click()
+    wait_for_run(widget)
+    field = viewer_model.layers["exif PSF field"]
+    assert field.metadata["edgecme_motion"]["intrinsics"]["focal_px"] == pytest.approx(200.0)
+
+
+def test_rgb_images_are_estimated(qtbot, viewer_model, edge_case, wait_for_run):
+    rgb = np.stack([edge_case.blurred, 0.8 * edge_case.blurred, 0.6 * edge_case.blurred], -1)
+    image = viewer_model.add_image(rgb, name="colour", rgb=True)
+    widget = make_widget(qtbot, viewer_model, image)
+    widget.run_button.click()
+    wait_for_run(widget)
+    assert widget.runner.outcome == "done"
+    assert viewer_model.layers["colour PSF field"].data.shape == (112, 112)
+
+
+def test_psf_grid_has_square_cells():
+    assert psf_grid((100, 100)) == (5, 5)
+    assert psf_grid((300, 400)) == (5, 7)
+    assert psf_grid((400, 300)) == (7, 5)

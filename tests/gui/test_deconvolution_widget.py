@@ -1,0 +1,159 @@
+"""The "Deconvolution" widget, offscreen against a ViewerModel (no GL canvas)."""
+
+from __future__ import annotations
+
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from napari.utils import progress
+
+from napari_edgecme._widgets.deconvolution import DeconvolutionWidget
+from napari_edgecme.core.deconv import DEFAULTS
+from napari_edgecme.core.metrics import aligned_psnr
+from napari_edgecme.core.motion import CameraMotion
+
+pytestmark = pytest.mark.gui
+
+SCALE, TRANSLATE = (2.0, 2.0), (-3.0, 7.5)
+
+
+@pytest.fixture
+def setup(qtbot, viewer_model, photo_case):
+    """A blurred photo layer carrying its true motion, and the widget."""
+    blurred = photo_case.blurred.copy()
+    image = viewer_model.add_image(blurred, name="photo", scale=SCALE, translate=TRANSLATE,
+                                   metadata={"edgecme_motion": photo_case.motion.to_dict()})
+    widget = DeconvolutionWidget(viewer_model)
+    qtbot.addWidget(widget)
+    widget.reset_choices()  # what napari does for a docked widget when layers change
+    widget.image_combo.value = image
+    return SimpleNamespace(viewer=viewer_model, image=image, widget=widget, original=blurred.copy())
+
+
+def test_defaults_are_the_engines(setup):
+    w = setup.widget
+    assert w.method_combo.value == "hyperlaplacian"
+    assert w.parameters() == {"lam": DEFAULTS["hyperlaplacian"]["lam"],
+                              "alpha": pytest.approx(DEFAULTS["hyperlaplacian"]["alpha"]),
+                              "solver": DEFAULTS["hyperlaplacian"]["solver"]}
+    assert w.motion_combo.value is setup.image  # the image's own (true) motion
+    w.method_combo.value = "rl"
+    assert w.parameters() == {"iterations": DEFAULTS["rl"]["iterations"]}
+    assert w.params.currentIndex() == 1
+    w.method_combo.value = "wiener"
+    assert w.parameters() == {"nsr": pytest.approx(DEFAULTS["wiener"]["nsr"])}
+
+
+def test_deblurring_with_the_true_motion_adds_a_restored_float32_layer(setup, wait_for_run,
+                                                                      photo_case,
+                                                                      assert_same_motion):
+    s = setup
+    s.widget.run_button.click()
+    assert not s.widget.run_button.isEnabled()
+    wait_for_run(s.widget)
+    assert s.widget.runner.outcome == "done"
+    assert [layer.name for layer in s.viewer.layers] == ["photo", "photo deblurred"]
+
+    restored = s.viewer.layers["photo deblurred"]
+    assert restored is s.widget.last_layer
+    assert restored.data.dtype == np.float32 and restored.data.shape == (96, 96)
+    np.testing.assert_allclose(restored.scale, SCALE)
+    np.testing.assert_allclose(restored.translate, TRANSLATE)
+    assert_same_motion(CameraMotion.from_dict(restored.metadata["edgecme_motion"]),
+                       photo_case.motion)
+    assert restored.metadata["edgecme_deconvolution"]["method"] == "hyperlaplacian"
+    # the input is untouched, and the result is sharper (the engine's own doctest bar)
+    np.testing.assert_array_equal(s.image.data, s.original)
+    gain = (aligned_psnr(restored.data, photo_case.sharp)
+            - aligned_psnr(photo_case.blurred, photo_case.sharp))
+    assert gain > 2.0
+
+
+def test_an_rgb_image_with_a_motion_from_a_json_file(qtbot, viewer_model, photo_case,
+                                                     tmp_path, wait_for_run, notifications,
+                                                     assert_same_motion):
+    rgb = np.stack([photo_case.blurred, 0.7 * photo_case.blurred,
+                    0.4 * photo_case.blurred], -1).astype(np.float32)
+    image = viewer_model.add_image(rgb, name="colour", rgb=True)
+    widget = DeconvolutionWidget(viewer_model)
+    qtbot.addWidget(widget)
+    widget.reset_choices()
+    widget.image_combo.value = image
+    path = tmp_path / "truth.json"
+    photo_case.motion.save(path)
+    loaded = widget.load_motion(path)
+    assert_same_motion(loaded, photo_case.motion)
+    assert widget.motion_combo.value is loaded
+    assert "file: truth.json" in widget.motion_combo.native.currentText()
+    widget.method_combo.value = "rl"
+    widget.rl_iterations.setValue(10)
+    widget.run_button.click()
+    wait_for_run(widget)
+    restored = viewer_model.layers["colour deblurred"]
+    assert restored.rgb and restored.data.shape == (96, 96, 3)
+    assert restored.data.dtype == np.float32
+    assert restored.metadata["edgecme_deconvolution"] == {"method": "rl", "iterations": 10}
+    assert any("loaded truth.json" in text for text in notifications.texts("info"))
+
+
+def test_a_bad_motion_file_is_refused_with_a_notification(setup, tmp_path, notifications):
+    path = tmp_path / "bad.json"
+    path.write_text('{"format": "something else"}')
+    assert setup.widget.load_motion(path) is None
+    (error,) = notifications.texts("error")
+    assert error.startswith("Deconvolution: ") and "not an edgecme motion file" in error
+    assert setup.widget.motion_combo.value is setup.image  # unchanged
+
+
+def test_no_motion_is_refused_on_the_main_thread(qtbot, viewer_model, photo_case,
+                                                 notifications):
+    viewer_model.add_image(photo_case.blurred, name="plain")
+    widget = DeconvolutionWidget(viewer_model)
+    qtbot.addWidget(widget)
+    widget.reset_choices()
+    assert widget.motion_combo.value is None
+    widget.run_button.click()
+    assert not widget.runner.is_running
+    assert len(viewer_model.layers) == 1
+    (error,) = notifications.texts("error")
+    assert "choose a motion" in error
+
+
+def test_a_motion_of_another_aspect_ratio_gives_a_notification_and_no_layer(
+        qtbot, viewer_model, photo_case, notifications, wait_for_run):
+    wide = viewer_model.add_image(np.zeros((96, 150), np.float32) + 0.5, name="wide")
+    viewer_model.add_image(photo_case.blurred, name="photo",
+                           metadata={"edgecme_motion": photo_case.motion.to_dict()})
+    widget = DeconvolutionWidget(viewer_model)
+    qtbot.addWidget(widget)
+    widget.reset_choices()
+    widget.image_combo.value = wide
+    assert widget.motion_combo.value is viewer_model.layers["photo"]
+    widget.run_button.click()
+    wait_for_run(widget)
+    assert widget.runner.outcome == "failed"
+    assert [layer.name for layer in viewer_model.layers] == ["wide", "photo"]
+    (error,) = notifications.texts("error")
+    assert error.startswith("Deconvolution: ") and "aspect ratio" in error
+
+
+def test_cancel_mid_run_stops_quickly_and_leaves_no_layer(qtbot, setup):
+    s = setup
+    s.widget.method_combo.value = "rl"
+    s.widget.rl_iterations.setValue(20000)  # about a minute of work
+    s.widget.run_button.click()
+    qtbot.waitUntil(lambda: s.widget.runner.progress_bar is not None
+                    and s.widget.runner.progress_bar.n >= 1)
+    bar = s.widget.runner.progress_bar
+    assert bar.total >= 20000
+    start = time.perf_counter()
+    s.widget.cancel_button.click()
+    qtbot.waitUntil(lambda: not s.widget.runner.is_running, timeout=5000)
+    assert time.perf_counter() - start < 1.0
+    assert s.widget.runner.outcome == "cancelled"
+    assert [layer.name for layer in s.viewer.layers] == ["photo"]
+    assert s.widget.run_button.isEnabled() and not s.widget.cancel_button.isEnabled()
+    assert s.widget.runner.progress_bar is None and bar not in progress._all_instances
+    np.testing.assert_array_equal(s.image.data, s.original)

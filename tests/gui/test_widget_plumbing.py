@@ -1,0 +1,136 @@
+"""The shared widget plumbing: the engine runner, transforms, focal length, snapshots."""
+
+from __future__ import annotations
+
+import logging
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from napari.layers import Image
+from qtpy.QtWidgets import QLabel, QPushButton, QWidget
+
+from napari_edgecme._widgets._common import (
+    EngineRunner,
+    focal_from_layer,
+    resampled_kwargs,
+    snapshot_image,
+)
+from napari_edgecme.core.progress import Progress
+
+pytestmark = pytest.mark.gui
+
+
+@pytest.fixture
+def ui(qtbot):
+    """An owner widget with Run/Cancel buttons, a status label and its runner."""
+    owner = QWidget()
+    qtbot.addWidget(owner)
+    run, cancel, status = QPushButton("Run", owner), QPushButton("Cancel", owner), QLabel(owner)
+    return SimpleNamespace(owner=owner, run=run, cancel=cancel, status=status,
+                           runner=EngineRunner(owner, "Demo", run, cancel, status))
+
+
+def records(n=10**9):
+    """A stand-in engine generator: a record every millisecond."""
+    for i in range(n):
+        time.sleep(1e-3)
+        yield Progress("demo", i + 1, n, "working")
+
+
+def test_an_unexpected_error_is_one_notification_and_the_ui_recovers(ui, wait_for_run,
+                                                                     notifications, caplog):
+
+    def broken():
+        yield Progress("demo", 0, 2, "starting")
+        raise RuntimeError("boom")  # superqt would take this for a deleted Qt object
+
+    results = []
+    with caplog.at_level(logging.ERROR, logger="napari_edgecme._widgets._common"):
+        ui.runner.start(broken(), on_result=results.append)
+        wait_for_run(ui)
+    assert ui.runner.outcome == "failed" and results == []
+    assert notifications.texts("error") == [
+        "Demo failed unexpectedly: RuntimeError: boom (the traceback is in the log)"]
+    assert "Traceback" in caplog.text and "boom" in caplog.text
+    assert ui.run.isEnabled() and not ui.cancel.isEnabled()
+    assert ui.status.text() == "Demo failed: RuntimeError: boom"
+
+
+def test_a_cancelled_engine_generator_is_closed(qtbot, ui, wait_for_run):
+    closed = []
+
+    def endless():
+        try:
+            yield from records()
+        finally:
+            closed.append(True)
+
+    ends = []
+    ui.runner.start(endless(), on_result=lambda _r: None, on_end=ends.append)
+    assert not ui.run.isEnabled() and ui.cancel.isEnabled()
+    qtbot.waitUntil(lambda: ui.runner.progress_bar is not None
+                    and ui.runner.progress_bar.n > 0)
+    ui.cancel.click()
+    wait_for_run(ui)
+    assert ui.runner.outcome == "cancelled" and ends == ["cancelled"]
+    assert closed == [True]  # the engine's clean-up ran: it stops for good
+    assert ui.status.text() == "Demo: cancelled"
+
+
+def test_a_second_start_while_running_is_ignored(ui, wait_for_run):
+    assert ui.runner.start(records(), on_result=lambda _r: None) is not None
+    assert ui.runner.start(records(), on_result=lambda _r: None) is None
+    ui.runner.cancel()
+    wait_for_run(ui)
+
+
+def test_a_destroyed_widget_cancels_its_run(qtbot):
+    owner = QWidget()  # not given to qtbot: this test deletes it
+    runner = EngineRunner(owner, "Demo", QPushButton(owner), QPushButton(owner), QLabel(owner))
+    results = []
+    runner.start(records(), on_result=results.append)
+    qtbot.waitUntil(lambda: runner.progress_bar is not None and runner.progress_bar.n > 0)
+    owner.deleteLater()
+    qtbot.waitUntil(lambda: not runner.is_running)
+    assert runner.outcome == "cancelled" and results == []
+
+
+def test_resampled_kwargs_lay_a_resized_copy_over_the_image():
+    image = Image(np.zeros((100, 60)), scale=(2.0, 3.0), translate=(5.0, 7.0))
+    copy = Image(np.zeros((50, 20)), **resampled_kwargs(image, (50, 20)))
+    # pixel centres of a resized copy sit at (p + 1/2) * f - 1/2 in the original
+    for p in ([0, 0], [49, 19], [10.5, 3.25]):
+        p = np.asarray(p, float)
+        in_image = (p + 0.5) * np.array([2.0, 3.0]) - 0.5
+        np.testing.assert_allclose(copy.data_to_world(p), image.data_to_world(in_image))
+
+
+def test_snapshot_is_a_private_copy_without_alpha():
+    rgba = np.random.default_rng(0).random((8, 9, 4)).astype(np.float32)
+    layer = Image(rgba, rgb=True)
+    snap = snapshot_image(layer)
+    assert snap.shape == (8, 9, 3)
+    snap[:] = 0
+    assert layer.data.any()
+    with pytest.raises(ValueError, match="must be a 2-D gray or RGB image"):
+        snapshot_image(Image(np.zeros((3, 8, 8))))
+
+
+def test_focal_length_from_the_exif_of_the_opened_file(viewer_model, tmp_path, plugins):
+    from PIL import Image as PILImage
+
+    path = tmp_path / "shot.jpg"
+    exif = PILImage.Exif()
+    exif.get_ifd(0x8769)[0xA405] = 28  # Exif IFD: FocalLengthIn35mmFilm
+    PILImage.fromarray(np.full((40, 60, 3), 128, np.uint8)).save(path, exif=exif)
+    (layer,) = viewer_model.open(str(path), plugin="napari")
+    focal, source = focal_from_layer(layer)
+    assert focal == pytest.approx(28 / 36 * 60)
+    assert source == "EXIF of shot.jpg (28 mm equivalent)"
+
+
+def test_focal_length_defaults_to_the_engine_convention():
+    focal, source = focal_from_layer(Image(np.zeros((30, 40))))
+    assert focal is None and source.startswith("default (35 mm")
