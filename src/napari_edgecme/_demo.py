@@ -210,9 +210,8 @@ def run_demo(out="edgecme-demo", *, size: int | None = None, seed: int = 0,
               "seed": seed, "n_iter": n_iter, "focal_px": truth.intrinsics.focal_px,
               "profiles": len(profiles), "profiles_reason": profiles.reason,
               "profiles_s": t_profiles, "shake_s": t_case}
-    seconds_before_write = time.perf_counter() - t_start
     files = _write_all(out, case, truth, estimates, restored, profiles, figures, rows,
-                       config, seconds_before_write)
+                       config, t_start)
     seconds = time.perf_counter() - t_start
     return DemoResult(out, out / "report.md", files, rows, seconds, config)
 
@@ -233,24 +232,31 @@ def psf_overlay(background: np.ndarray, motion: CameraMotion, grid=PSF_GRID) -> 
     return (base * (1 - field[..., None]) + field[..., None] * colour).astype(np.float32)
 
 
-def profile_locations(background: np.ndarray, profiles: EdgeProfiles) -> np.ndarray:
-    """Each edge profile drawn as a segment along its normal, over a dimmed image (RGB)."""
+def profile_locations(background: np.ndarray, profiles: EdgeProfiles,
+                      min_side: int = 512) -> np.ndarray:
+    """Each edge profile drawn as a segment along its normal over a dimmed image (RGB).
+
+    The image is enlarged by an integer factor (nearest neighbour) until its longer
+    side is at least ``min_side`` pixels, so that the segments are visible.
+    """
     from skimage.draw import line
 
-    rgb = 0.5 * _gray_rgb(background)
-    if len(profiles) == 0:
-        return rgb
-    rows, cols = background.shape
-    half = float(np.max(np.abs(profiles.offsets)))
+    zoom = max(1, math.ceil(min_side / max(background.shape)))
+    rgb = 0.5 * _gray_rgb(np.kron(background, np.ones((zoom, zoom), background.dtype)))
+    rows, cols = rgb.shape[:2]
+
+    def pixel(r, c):  # image (row, col) -> enlarged pixel centre
+        return round((r + 0.5) * zoom - 0.5), round((c + 0.5) * zoom - 0.5)
+
+    half = float(np.max(np.abs(profiles.offsets))) if len(profiles) else 0.0
     for (r, c), (nr, nc), q in zip(profiles.centroids, profiles.normals, profiles.quality,
                                    strict=True):
-        r0, c0 = round(r - half * nr), round(c - half * nc)
-        r1, c1 = round(r + half * nr), round(c + half * nc)
-        rr, cc = line(r0, c0, r1, c1)
+        rr, cc = line(*pixel(r - half * nr, c - half * nc), *pixel(r + half * nr, c + half * nc))
         keep = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
         q = float(np.clip(q, 0, 1))
         rgb[rr[keep], cc[keep]] = (1.0 - 0.7 * q, 0.4 + 0.6 * q, 0.2)
-        rgb[int(np.clip(round(r), 0, rows - 1)), int(np.clip(round(c), 0, cols - 1))] = (1, 1, 1)
+        pr, pc = pixel(r, c)
+        rgb[max(pr - 1, 0):pr + 2, max(pc - 1, 0):pc + 2] = (1, 1, 1)
     return rgb
 
 
@@ -339,7 +345,7 @@ class _Figures:
 # --------------------------------------------------------------------------------------
 
 def _write_all(out: Path, case, truth, estimates, restored, profiles, figures, rows, config,
-               seconds) -> list[Path]:
+               t_start: float) -> list[Path]:
     """Write every file to a temporary name, then rename all; remove stale demo files."""
     writers = {
         "sharp.png": lambda p: _io.write_image(p, case.sharp),
@@ -364,10 +370,11 @@ def _write_all(out: Path, case, truth, estimates, restored, profiles, figures, r
         tmps = {name: stack.enter_context(_io.atomic_path(out / name)) for name in names}
         for name, write in writers.items():
             write(tmps[name])
+        seconds = time.perf_counter() - t_start  # everything but renaming into place
         report = _report(rows, config, names, figures.mpl is not None, seconds, out)
         tmps["report.md"].write_text(report, encoding="utf-8")
         payload = {"config": config, "rows": rows, "files": names,
-                   "machine": _machine(), "seconds_before_writing": seconds}
+                   "machine": _machine(), "seconds": seconds}
         tmps["report.json"].write_text(json.dumps(payload, indent=1, default=float) + "\n",
                                        encoding="utf-8")
     for stale in set(DEMO_FILES) - set(names):  # from an earlier run; ours by name
@@ -392,7 +399,7 @@ def _report(rows, config, names, have_mpl: bool, seconds: float, out: Path) -> s
     table = []
     for r in rows:
         if "failed" in r:
-            table.append([r["name"], f"failed: {r['failed']}", "", "", "", "", "", ""])
+            table.append([r["name"], "failed (see the notes)", "", "", "", "", "", ""])
             continue
         ncc = "1 (truth)" if r["key"] == "oracle" else _fmt(r.get("ncc"), ".3f")
         table.append([r["name"], _fmt(r.get("psnr"), ".2f"), _fmt(r.get("gain"), "+.2f"),
