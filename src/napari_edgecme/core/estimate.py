@@ -62,7 +62,8 @@ METHODS = ("ep", "xu", "xu+ep")
 DEFAULTS = {
     "lambda_w": 2e-3,  # L1 weight on the MDF (Eqs. 19, 22)
     "lambda_ip": 1.0,  # weight of the edge-profile term in Xu+Ep (Eq. 22)
-    "lambda_f": 2e-2,  # L0 weight of the latent update (Eq. 21), decays by 1/1.1 per iteration
+    "lambda_f": 6e-3,  # L0 weight at the finest scale (Eq. 21); x 1/scale at coarser ones,
+    # and / 1.1 per iteration
     "n_iter": 5,  # alternations per scale (Algorithm 1, n_max)
     "max_side": 1024,  # estimate on a copy whose longer side is at most this
     "min_profiles": 12,  # EpAlone needs at least this many edge profiles
@@ -71,9 +72,10 @@ DEFAULTS = {
 
 _PYRAMID_RATIO = 1.0 / math.sqrt(2.0)
 _LASSO_MAX_ITER = 200
-_GRADIENT_SMOOTHING = 1.5
+_GRADIENT_SMOOTHING = 1.0
 _LAMBDA_F_SCALING = 1.0
-_ROLL_FROM_BLUR = 0.0  # levels whose blur (px) is below this keep theta_z = 0
+_ROLL_FROM_BLUR = 12.0  # levels whose blur (px) is below this keep theta_z = 0
+_CLUSTER_FLOOR = 0.1  # clusters lighter than this share of the heaviest one are dropped
 _SALIENT_START = 0.1  # share of latent gradients used by the first MDF update of a scale
 _WEIGHT_FLOOR = 1.0 / 20.0  # drop weights below this fraction of the largest (Whyte et al.)
 
@@ -216,8 +218,10 @@ def _initial_weights(level: _Level, previous: CameraMotion | None) -> np.ndarray
         # a small blob, not a delta: the delta is a fixed point of the alternation (the
         # L0 latent of a delta-blurred image explains the data with a delta again)
         w = np.zeros(level.grid.counts)
-        centre = tuple(slice(h - 1, h + 2) for h in level.grid.half)
-        w[centre] = np.exp(-np.sum((np.indices((3,) * w.ndim) - 1.0) ** 2, axis=0))
+        centre = tuple(slice(max(h - 1, 0), h + 2) for h in level.grid.half)
+        offsets = np.indices(w[centre].shape) - np.minimum(level.grid.half, 1).reshape(
+            (-1,) + (1,) * w.ndim)
+        w[centre] = np.exp(-np.sum(offsets.astype(float) ** 2, axis=0))
         return w / w.sum()
     moved = previous.rescale(level.shape)
     w = level.grid.splat(moved.poses, moved.weights)
@@ -230,9 +234,22 @@ def _dilate(support: np.ndarray, steps: int = 1) -> np.ndarray:
 
 
 def _clean(weights: np.ndarray) -> np.ndarray:
-    """Drop weights below 1/20 of the largest, renormalise, re-centre on the grid."""
+    """Drop weights below 1/20 of the largest and small isolated clusters; renormalise; re-centre.
+
+    A camera traces one connected path through pose space: clusters of the support
+    (connected on the grid, diagonals included) holding less than a tenth of the total
+    weight are ghosts fitted to deconvolution artefacts, and are removed (Pan et al.
+    do the same on kernels).
+    """
     w = np.where(weights >= _WEIGHT_FLOOR * weights.max(), weights, 0.0)
     w /= w.sum()
+    if _CLUSTER_FLOOR > 0:
+        labels, n = ndimage.label(w > 0, np.ones((3,) * w.ndim, bool))
+        if n > 1:
+            mass = ndimage.sum_labels(w, labels, np.arange(1, n + 1))
+            keep = np.flatnonzero(mass >= _CLUSTER_FLOOR * mass.max()) + 1
+            w = np.where(np.isin(labels, keep), w, 0.0)
+            w /= w.sum()
     idx = np.indices(w.shape).reshape(w.ndim, -1)
     centroid = idx @ w.ravel()
     shift = np.round(np.asarray(w.shape) // 2 - centroid).astype(int)
