@@ -618,28 +618,34 @@ def _add_estimation(parser) -> None:
     group.add_argument("--profiles", type=Path, metavar="PROFILES.json",
                        help="use these edge profiles (from 'edgecme profiles') instead of "
                             "detecting them")
+    d = _estimate.DEFAULTS  # defaults shown are the engine's own
     adv = parser.add_argument_group("advanced estimation parameters (paper Eqs. 19-22)")
     adv.add_argument("--n-iter", type=_number(int), metavar="N",
-                     help="alternations per pyramid scale (default 5)")
+                     help=f"alternations per pyramid scale (default {d['n_iter']})")
     adv.add_argument("--lambda-w", type=_number(allow_zero=True), metavar="L",
-                     help="L1 weight on the motion density (default 2e-3)")
+                     help=f"L1 weight on the motion density (default {d['lambda_w']:g})")
     adv.add_argument("--lambda-ip", type=_number(allow_zero=True), metavar="L",
-                     help="weight of the edge-profile term in xu+ep (default 1)")
+                     help=f"weight of the edge-profile term in xu+ep (default "
+                          f"{d['lambda_ip']:g})")
     adv.add_argument("--lambda-f", type=_number(), metavar="L",
-                     help="L0 weight of the latent-image update (default 2e-2)")
+                     help=f"L0 weight of the latent-image update at the finest scale "
+                          f"(default {d['lambda_f']:g})")
     adv.add_argument("--max-side", type=_number(int), metavar="PX",
-                     help="estimate on a copy downscaled to this longer side (default 1024)")
+                     help=f"estimate on a copy downscaled to this longer side (default "
+                          f"{d['max_side']})")
 
 
 def _add_deconvolution(parser) -> None:
+    d = _deconv.DEFAULTS
     group = parser.add_argument_group("deconvolution parameters")
     group.add_argument("--lam", type=_number(), metavar="L",
-                       help="hyperlaplacian: data weight (default 3000; higher for cleaner "
-                            "photos, lower for noisier ones)")
+                       help=f"hyperlaplacian: data weight (default "
+                            f"{d['hyperlaplacian']['lam']:g}; higher for cleaner photos, "
+                            "lower for noisier ones)")
     group.add_argument("--iterations", type=_number(int), metavar="N",
-                       help="rl: Richardson-Lucy iterations (default 30)")
+                       help=f"rl: Richardson-Lucy iterations (default {d['rl']['iterations']})")
     group.add_argument("--nsr", type=_number(), metavar="R",
-                       help="wiener: noise-to-signal ratio (default 3e-3)")
+                       help=f"wiener: noise-to-signal ratio (default {d['wiener']['nsr']:g})")
 
 
 def build_parser() -> argparse.ArgumentParser:
