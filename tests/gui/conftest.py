@@ -100,3 +100,10 @@ def plugins():
     manager = PluginManager.instance()
     manager.discover()
     return manager
+
+
+@pytest.fixture(scope="session")
+def artifacts_dir() -> Path:
+    """``test-artifacts/`` at the repository root (git-ignored), created if needed."""
+    ARTIFACTS.mkdir(exist_ok=True)
+    return ARTIFACTS

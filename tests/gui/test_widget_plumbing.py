@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from napari.layers import Image
-from qtpy.QtWidgets import QLabel, QPushButton, QWidget
+from qtpy.QtWidgets import QApplication, QLabel, QPushButton, QWidget
 
 from napari_edgecme._widgets._common import (
     EngineRunner,
@@ -56,6 +56,33 @@ def test_an_unexpected_error_is_one_notification_and_the_ui_recovers(ui, wait_fo
     assert "Traceback" in caplog.text and "boom" in caplog.text
     assert ui.run.isEnabled() and not ui.cancel.isEnabled()
     assert ui.status.text() == "Demo failed: RuntimeError: boom"
+
+
+def test_handlers_run_in_order_even_when_one_processes_events(ui, wait_for_run):
+    # napari's progress bar and notifications call processEvents() while repainting: the
+    # worker's next signals must not run inside the handler that is updating them
+    calls = []
+
+    def on_record(record):
+        calls.append(record.step)
+        QApplication.processEvents()
+        time.sleep(0.005)
+        QApplication.processEvents()
+        calls.append(-record.step)
+
+    def on_result(value):
+        calls.append("result")
+        return f"got {value}"
+
+    def three():
+        yield from records(3)
+        return 42
+
+    ui.runner.start(three(), on_result=on_result, on_record=on_record,
+                    on_end=lambda outcome: calls.append(outcome))
+    wait_for_run(ui)
+    assert calls == [1, -1, 2, -2, 3, -3, "result", "done"]
+    assert ui.status.text() == "Demo: got 42"
 
 
 def test_a_cancelled_engine_generator_is_closed(qtbot, ui, wait_for_run):

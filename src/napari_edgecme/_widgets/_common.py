@@ -24,6 +24,11 @@ worker is taken for a deleted Qt object and the worker never emits ``finished``
 warnings to notifications itself depends on its version. The worker class is
 superqt's plain ``GeneratorWorker``, so this module alone decides what is shown.
 
+The handlers run one at a time, in the order the worker emitted its signals:
+napari's progress bars and notifications call ``QApplication.processEvents()``
+while they repaint, so without care the worker's next signals (even ``returned``
+and ``finished``) would run *inside* a handler that updates the progress bar.
+
 The rest are small helpers: layer-metadata keys, layer choices, spatial transforms,
 focal length from metadata/EXIF, a "max blur" control and themed matplotlib canvases.
 """
@@ -32,8 +37,10 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -298,6 +305,8 @@ class EngineRunner:
         self._worker: GeneratorWorker | None = None
         self._gen: Generator | None = None
         self._alive = True
+        self._queue: deque = deque()
+        self._delivering = False
         self._outcome = ""
         self.progress_bar: progress | None = None
         self._on_result: Callable = _ignore
@@ -352,11 +361,13 @@ class EngineRunner:
         self._on_end = on_end or _ignore
         self._outcome = ""
         self.progress_bar = progress(total=0, desc=self.title)
+        handlers = {"yielded": self._on_yielded, "returned": self._on_returned,
+                    "warned": self._on_warned, "errored": self._on_errored,
+                    "aborted": self._on_aborted, "finished": self._on_finished}
         worker = create_worker(
             _relay, gen, _start_thread=False, _worker_class=GeneratorWorker,
-            _connect={"yielded": self._on_yielded, "returned": self._on_returned,
-                      "warned": self._on_warned, "errored": self._on_errored,
-                      "aborted": self._on_aborted, "finished": self._on_finished})
+            _connect={name: partial(self._deliver, handler)
+                      for name, handler in handlers.items()})
         self._worker = worker
         self._run_button.setEnabled(False)
         self._cancel_button.setEnabled(True)
@@ -374,9 +385,31 @@ class EngineRunner:
             self._status.setText(f"{self.title}: cancelling…")
 
     # -- worker signals (main thread) ---------------------------------------------------------
+    def _deliver(self, handler: Callable, *args) -> None:
+        """Run the handlers of the worker's signals one at a time, in order (module notes)."""
+        self._queue.append((handler, args))
+        if self._delivering:  # re-entered from a processEvents() inside a handler
+            return
+        self._delivering = True
+        error = None
+        try:
+            while self._queue:
+                handler, args = self._queue.popleft()
+                try:
+                    handler(*args)
+                except Exception as err:  # run the rest (``finished``!), then re-raise
+                    error = error or err
+        finally:
+            self._delivering = False
+        if error is not None:
+            raise error
+
     def _on_yielded(self, record) -> None:
         if not isinstance(record, Progress) or self._worker is None:
             return
+        if self._alive:
+            self._status.setText(f"{self.title}: {record.message or 'running'}")
+            self._on_record(record)
         bar = self.progress_bar
         if bar is not None:
             if bar.total != record.total:
@@ -385,9 +418,6 @@ class EngineRunner:
                                 else self.title)
             if record.step > bar.n:
                 bar.update(record.step - bar.n)
-        if self._alive:
-            self._status.setText(f"{self.title}: {record.message or 'running'}")
-            self._on_record(record)
 
     def _on_returned(self, result) -> None:
         if isinstance(result, Failed):
@@ -531,8 +561,25 @@ class MaxBlurControl(QWidget):
         return float(self.spin.value())
 
 
-def plot_canvas(viewer, n_axes: int, height: float = 2.6):
+def plot_canvas(viewer, n_axes: int, height: float = 2.6, left_margin: int = 48,
+                right_margin: int = 12):
     """A matplotlib canvas for a dock widget, in the viewer's theme colours.
+
+    The margins are fixed in pixels (room for tick labels and axis labels whatever
+    size the dock gives the canvas) and re-applied when the canvas is resized; a
+    constrained layout would cost more than drawing the plot.
+
+    Parameters
+    ----------
+    viewer
+        For the theme colours.
+    n_axes : int
+        Side-by-side axes.
+    height : float
+        Preferred height in inches (at 72 dpi: the canvas's minimum height).
+    left_margin, right_margin : int
+        Pixels left of the first axes (more for a y label) and right of the last
+        (more for a colour bar's label).
 
     Returns
     -------
@@ -547,10 +594,17 @@ def plot_canvas(viewer, n_axes: int, height: float = 2.6):
         label.setWordWrap(True)
         return label, []
     fg, bg = theme_colours(viewer)
-    # fixed margins: a constrained layout would cost more than the drawing itself
     fig = Figure(figsize=(3.6, height), facecolor=bg)
-    fig.subplots_adjust(left=0.15, right=0.97, bottom=0.17, top=0.9, wspace=0.4)
     canvas = FigureCanvasQTAgg(fig)
+
+    def fit_margins(_event=None):
+        width, tall = fig.bbox.width, fig.bbox.height
+        if width > 4 * (left_margin + right_margin) and tall > 4 * (36 + 22):
+            fig.subplots_adjust(left=left_margin / width, right=1 - right_margin / width,
+                                bottom=36 / tall, top=1 - 22 / tall, wspace=0.45)
+
+    fit_margins()
+    canvas.mpl_connect("resize_event", fit_margins)
     axes = list(np.atleast_1d(fig.subplots(1, n_axes)))
     for ax in axes:
         style_axes(ax, fg, bg)

@@ -155,7 +155,8 @@ class CameraMotionWidget(QWidget):
         self.save_button.setEnabled(False)
         self.status = QLabel("")
         self.status.setWordWrap(True)
-        self.canvas, axes = plot_canvas(viewer, 1, height=2.8)
+        self.canvas, axes = plot_canvas(viewer, 1, height=2.8, left_margin=60,
+                                        right_margin=16)
         self._has_plot = bool(axes)
         self._colours = theme_colours(viewer)
 

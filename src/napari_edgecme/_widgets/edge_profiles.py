@@ -133,6 +133,7 @@ class EdgeProfilesWidget(QWidget):
         self._attached: list[_ProfileLayers] = []
         self._current: _ProfileLayers | None = None
         self._rendering = False
+        self._reconciling = False
         self._pending: list[Shapes] = []
         self._connections = Connections(self)
 
@@ -396,11 +397,18 @@ class EdgeProfilesWidget(QWidget):
         QTimer.singleShot(0, self._reconcile_pending)
 
     def _reconcile_pending(self) -> None:
+        if self._reconciling:  # re-entered from a notification's processEvents(): later
+            QTimer.singleShot(0, self._reconcile_pending)
+            return
         pending, self._pending = self._pending, []
-        for layer in pending:
-            rec = self._record_for_shapes(layer)
-            if rec is not None:
-                self._reconcile(rec)
+        self._reconciling = True
+        try:
+            for layer in pending:
+                rec = self._record_for_shapes(layer)
+                if rec is not None:
+                    self._reconcile(rec)
+        finally:
+            self._reconciling = False
 
     def _reconcile(self, rec: _ProfileLayers) -> None:
         """Bring the profile set in line with the lines the user left in the Shapes layer.
@@ -437,8 +445,6 @@ class EdgeProfilesWidget(QWidget):
                     accepted.append(one)
                 else:
                     refused.append(one.reason)
-        for reason in refused:
-            show_warning(f"Edge profiles: line refused: {reason}")
         parts = [old.subset(kept), *accepted]
         profiles = EdgeProfiles.concatenate(parts)
         if len(profiles) == 0 and not profiles.reason:
@@ -454,6 +460,8 @@ class EdgeProfilesWidget(QWidget):
             finally:
                 self._rendering = False
         self._set_current(rec)
+        for reason in refused:  # last: a notification may process pending events
+            show_warning(f"Edge profiles: line refused: {reason}")
 
     def _on_selection(self, *_args) -> None:
         if not self._rendering:
