@@ -87,9 +87,9 @@ def test_the_three_widgets_dock_run_and_leave_a_screenshot(make_napari_viewer_pr
         viewer.layers.move(viewer.layers.index(layer), len(viewer.layers))
     assert [layer.name for layer in viewer.layers][:3] == [
         "shaken", "shaken PSF field", "shaken deblurred"]
-    viewer.grid.stride = 2
-    viewer.grid.spacing = 0.05
-    viewer.grid.enabled = True
+    grid = viewer.canvas.grid
+    grid.stride, grid.spacing = 2, 0.05
+    grid.enabled = True
     viewer.reset_view()
     qtbot.wait(200)
     path = artifacts_dir / SCREENSHOT
