@@ -270,9 +270,9 @@ def _check_output(path: Path, option: str, image: bool = False) -> Path:
     if not os.access(folder, os.W_OK):
         raise CLIError(f"output folder is not writable: {folder} (for {option} {path})")
     if image and path.suffix.lower() not in _io.IMAGE_SUFFIXES:
-        raise CLIError(f"cannot write {option} {path}: unsupported image format "
-                       f"{path.suffix or '(no extension)'!r}; use one of "
-                       + ", ".join(_io.IMAGE_SUFFIXES))
+        suffix = repr(path.suffix) if path.suffix else "(no extension)"
+        raise CLIError(f"cannot write {option} {path}: unsupported image format {suffix}; "
+                       "use one of " + ", ".join(_io.IMAGE_SUFFIXES))
     return path
 
 
@@ -399,7 +399,8 @@ def _estimate_motion(args, console: _Console, image, path: Path):
 
 def _estimate_summary(result, max_blur: float, focal_source: str) -> str:
     info = result.info
-    text = (f"{_describe(result.motion)} ({info.method}, max blur {max_blur:g} px, focal "
+    method = info.method + (" fell back to xu" if "fell back" in info.message else "")
+    text = (f"{_describe(result.motion)} ({method}, max blur {max_blur:g} px, focal "
             f"{info.focal_px:.0f} px from {focal_source}")
     if info.n_profiles:
         text += f", {info.n_profiles} edge profiles"
@@ -481,9 +482,9 @@ def cmd_profiles(args, console: _Console) -> int:
         _check_output(args.plot, "--plot")
         formats = _figure_formats()
         if args.plot.suffix.lower() not in formats:
+            suffix = repr(args.plot.suffix) if args.plot.suffix else "(no extension)"
             raise CLIError(f"cannot write --plot {args.plot}: unsupported figure format "
-                           f"{args.plot.suffix or '(no extension)'!r}; use one of "
-                           + ", ".join(sorted(formats)))
+                           f"{suffix}; use one of " + ", ".join(sorted(formats)))
         outputs.append(("--plot", args.plot))
     _distinct([("IMAGE", path)], outputs)
     image = read_input_image(path, console)
