@@ -75,9 +75,21 @@ REASONS = {
     10: "second edge in the window",
     11: "edge not straight (parallel lines disagree)",
     12: "outlier among neighbours of similar orientation",
+    13: "wider than the blur the other profiles show (soft or shaded edge)",
 }
 _BORDER, _SATURATED, _LOW_CONTRAST, _NO_TRANSITION, _AT_END, _SHORT, _NOISY, \
-    _NOT_MONOTONE, _TOO_WIDE, _SECOND_EDGE, _NOT_STRAIGHT, _OUTLIER = range(1, 13)
+    _NOT_MONOTONE, _TOO_WIDE, _SECOND_EDGE, _NOT_STRAIGHT, _OUTLIER, _SOFT = range(1, 14)
+
+#: Shortest flat margin on each side of the transition, as a fraction of ``max_blur``
+#: (at least 3 px).
+_PLATEAU_FRACTION = 0.25
+
+_OUTLIER_FLOOR = 0.4
+_OUTLIER_MADS = 3.0
+_SOFT_TAU = 0.2
+_SOFT_REL = 0.35
+
+_WINDOW_DEPENDENT = (_SATURATED, _LOW_CONTRAST, _AT_END, _SHORT, _NOISY)
 
 #: Fine sampling step along the normal (pixels): alternate samples are the bin edges
 #: (for the derivative) and the bin centres (for the profile) of the one-pixel output grid.
@@ -589,7 +601,7 @@ class _Geometry:
 
 
 def _geometry(max_blur: float, n_lines: int, line_spread, half_length=None) -> _Geometry:
-    plateau = max(3, round(0.15 * max_blur))
+    plateau = max(3, round(_PLATEAU_FRACTION * max_blur))
     half = (math.ceil(max_blur - 1e-9) + plateau + 1) if half_length is None else int(half_length)
     smallest = 2 * plateau + 2
     fractions = (1.0, 0.8, 0.64, 0.5, 0.4)
@@ -605,11 +617,11 @@ def _geometry(max_blur: float, n_lines: int, line_spread, half_length=None) -> _
 # automatic extraction
 # ---------------------------------------------------------------------------------------
 
-def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast=0.04,
-                          min_snr=8.0, spacing=None, n_lines=5, line_spread=None,
+def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast=0.06,
+                          min_snr=10.0, spacing=None, n_lines=5, line_spread=None,
                           flat_tol=0.06, monotone_tol=0.08, straight_tol=0.35,
-                          saturation=0.99, reject_outliers=True, max_candidates=6000,
-                          max_profiles=None) -> EdgeProfiles:
+                          saturation=0.99, reject_outliers=True, reject_soft=True,
+                          max_candidates=6000, max_profiles=None) -> EdgeProfiles:
     """Detect, validate and centroid-align edge profiles in a blurred image (paper §2, §4).
 
     Parameters
@@ -628,7 +640,8 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
         Canny scale (px). Default ``clip(0.2 * max_blur, 1, 8)``: smooth enough that the
         gradient of a blurred edge has one maximum across it, no smoother.
     min_contrast : float
-        Smallest accepted ``|c1 - c2|`` on the [0, 1] scale (default 0.04).
+        Smallest accepted ``|c1 - c2|`` on the [0, 1] scale (default 0.06: fainter
+        "edges" in real photos are mostly shading, not blurred steps).
     min_snr : float
         Smallest accepted ``|c1 - c2| / noise`` (noise from :func:`estimate_noise`).
     spacing : float, optional
@@ -654,6 +667,9 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
     reject_outliers : bool
         Refuse profiles whose derivative disagrees with the median of their neighbours
         of similar orientation.
+    reject_soft : bool
+        Refuse profiles wider than the camera-shake blur field fitted to the lower side
+        of all profiles' widths (soft or shaded scene edges; see Notes).
     max_candidates : int
         Most candidate points examined (a seeded random subset beyond that).
     max_profiles : int, optional
@@ -758,6 +774,12 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
                                               shape, max_blur)
         stats["outliers"] = int((~keep).sum())
         stats["rejected"][REASONS[_OUTLIER]] = stats["outliers"]
+    if reject_soft and keep.sum() >= 6:
+        soft = ~_blur_consistency(prof["centroid"][keep], prof["angle"][keep],
+                                  prof["deriv"][keep], offsets, shape)
+        stats["soft"] = int(soft.sum())
+        stats["rejected"][REASONS[_SOFT]] = stats["soft"]
+        keep[np.flatnonzero(keep)[soft]] = False
     quality = _quality(res, agreement, geom, tests)
     idx = np.flatnonzero(keep)
     idx = idx[_spread_out(prof["centroid"][idx], quality[idx], spacing)]
@@ -830,8 +852,22 @@ def _edge_candidates(img, sigma, geom, tests, border, spacing):
     strong[0] = False
     keep = strong[labels[r, c]]
     r, c, m = r[keep], c[keep], m[keep]
+    # cheap contrast screen: the smoothed image a plateau's length beyond the edge on
+    # either side, at the largest and the smallest window, must differ by half the
+    # contrast the full tests will ask for
+    ur, uc = gr[r, c] / m, gc[r, c] / m
+    need = 0.7 * max(tests.min_contrast, tests.min_snr * tests.noise)
+    best = np.full(r.size, -np.inf)
+    for w in {geom.windows[0], geom.windows[-1]}:
+        d = float(w - geom.plateau)
+        pair = ndimage.map_coordinates(smooth, [np.concatenate([r + d * ur, r - d * ur]),
+                                                np.concatenate([c + d * uc, c - d * uc])],
+                                       order=1, mode="nearest")
+        best = np.maximum(best, pair[:r.size] - pair[r.size:])
+    keep = best >= need
+    r, c, m = r[keep], c[keep], m[keep]
     # thin: strongest pixel per cell
-    cell = max(1, int(spacing // 3))
+    cell = max(1, int(spacing // 2))
     ncol = mag.shape[1] // cell + 1
     key = (r // cell) * ncol + c // cell
     order = np.lexsort((-m, key))
@@ -1043,7 +1079,9 @@ def _best_window(S_full, geom: _Geometry, tests: _Tests, final: bool, max_tilt: 
             else:
                 out[key][take] = v[passed]
         out["window"][take] = R
-        todo = todo[~passed]
+        # a smaller window can only help where clutter beyond the transition spoiled the
+        # plateaus (or their estimate); the other failures do not depend on the window
+        todo = todo[np.isin(res["reason"], _WINDOW_DEPENDENT)]
         if todo.size == 0 or k == len(windows) - 1:
             break
     return out
@@ -1158,10 +1196,66 @@ def _neighbour_outliers(centroids, angles, deriv, shape, max_blur):
     if s.size >= 5:
         centre = np.median(s)
         mad = 1.4826 * np.median(np.abs(s - centre))
-        bad = np.isfinite(score) & ((score < 0.3)
-                                    | ((score < centre - 4 * mad) & (score < 0.8)))
+        bad = np.isfinite(score) & ((score < _OUTLIER_FLOOR)
+                                    | ((score < centre - _OUTLIER_MADS * mad) & (score < 0.8)))
         keep = ~bad
     return keep, score
+
+
+_QUANTILE_ITERS = 30
+
+
+def _blur_consistency(centroids, angles, deriv, offsets, shape, tau=None, rel=None,
+                      slack=1.0) -> np.ndarray:
+    """Keep profiles whose width is consistent with one camera-shake blur field.
+
+    A blurred step's derivative is the PSF projection convolved with the sharp edge's
+    own profile, so its variance is ``n^T Sigma(x) n`` (``Sigma`` the covariance of the
+    local PSF) *plus* the sharp edge's variance, never less. For camera shake the PSF
+    displacements are nearly affine in ``x`` over the image, so ``Sigma(x)`` is a
+    quadratic polynomial in ``x``. We fit that field to the lower side of the measured
+    variances (a quantile regression at ``tau``, by iterative reweighting: 18
+    coefficients, fewer when there are few profiles) and refuse profiles wider than
+    ``(1 + rel) * fit + slack`` px^2: soft or shaded scene edges, which would make the
+    blur look larger than it is.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+        True where the profile is consistent.
+    """
+    tau = _SOFT_TAU if tau is None else tau
+    rel = _SOFT_REL if rel is None else rel
+    n = len(centroids)
+    var = deriv @ (offsets**2)
+    H, W = shape
+    size = float(max(H, W))
+    x = (centroids[:, 1] - (W - 1) / 2) / size
+    y = (centroids[:, 0] - (H - 1) / 2) / size
+    basis = [np.ones(n)]
+    if n >= 30:
+        basis += [x, y]
+    if n >= 60:
+        basis += [x * x, x * y, y * y]
+    B = np.stack(basis, -1)
+    c, s = np.cos(angles), np.sin(angles)
+    F = np.concatenate([B * (c * c)[:, None], B * (2 * c * s)[:, None], B * (s * s)[:, None]],
+                       1)
+    scale = max(float(np.median(var)), 1e-3)
+    ridge = 1e-6 * np.eye(F.shape[1]) * n
+    w = np.ones(n)
+    pred = np.full(n, scale)
+    for _ in range(_QUANTILE_ITERS):
+        A = F.T @ (F * w[:, None]) + ridge
+        try:
+            theta = np.linalg.solve(A, F.T @ (w * var))
+        except np.linalg.LinAlgError:  # pragma: no cover - degenerate orientations
+            break
+        pred = F @ theta
+        r = var - pred
+        # iteratively reweighted least squares for the check loss of quantile tau
+        w = np.where(r > 0, tau, 1.0 - tau) / np.maximum(np.abs(r), 0.02 * scale)
+    return var <= (1.0 + rel) * np.maximum(pred, 0.0) + slack
 
 
 def _ncc_rows(a, b) -> np.ndarray:
@@ -1229,7 +1323,7 @@ def _summarise(counts: dict) -> str:
 # ---------------------------------------------------------------------------------------
 
 def profile_along_line(image, start, end, *, max_blur=None, n_lines=5, line_spread=None,
-                       min_contrast=0.04, min_snr=8.0, flat_tol=0.06, monotone_tol=0.08,
+                       min_contrast=0.06, min_snr=10.0, flat_tol=0.06, monotone_tol=0.08,
                        straight_tol=0.35, saturation=0.99) -> EdgeProfiles:
     """One edge profile across a hand-drawn line, or none with the reason why.
 
