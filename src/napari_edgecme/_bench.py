@@ -56,6 +56,7 @@ import numpy as np
 __all__ = [
     "BenchConfig",
     "CaseSpec",
+    "load_average",
     "machine_info",
     "make_config",
     "markdown_table",
@@ -179,6 +180,14 @@ def _total_memory_gib() -> float | None:
     return None
 
 
+def load_average() -> float | None:
+    """The 1-minute load average (None where the platform has none)."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except (AttributeError, OSError):  # Windows
+        return None
+
+
 def machine_info() -> dict:
     """Date, machine name, CPU count, platform and versions, for reports."""
     import scipy
@@ -187,6 +196,7 @@ def machine_info() -> dict:
 
     return {
         "date": time.strftime("%Y-%m-%d %H:%M %Z"),
+        "load_average": load_average(),
         "node": platform.node(),
         "cpus": os.cpu_count(),
         "memory_gib": _total_memory_gib(),
@@ -200,9 +210,15 @@ def machine_info() -> dict:
 
 def _machine_line(m: dict) -> str:
     memory = f", {m['memory_gib']:.0f} GiB RAM" if m.get("memory_gib") else ""
+    load = ""
+    if m.get("load_average") is not None:
+        loads = [m["load_average"], m.get("load_average_end", m["load_average"])]
+        load = f"; load average {loads[0]:.1f} at the start, {loads[1]:.1f} at the end"
+        if max(loads) > (m.get("cpus") or 1) + 0.5:
+            load += " (above the CPU count: the machine was shared, so times are inflated)"
     return (f"{m['date']} on `{m['node']}` ({m['cpus']} CPUs{memory}, {m['platform']}), "
             f"Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}, "
-            f"napari-edgecme {m['version']}")
+            f"napari-edgecme {m['version']}{load}")
 
 
 def markdown_table(header, rows, align: str | None = None) -> str:
@@ -370,6 +386,7 @@ def run_quality(config: BenchConfig, workdir: Path, log=None) -> dict:
 
     log = log or (lambda message: None)
     t_start = time.perf_counter()
+    machine = machine_info()
     cases = []
     baseline = None
     n_runs = len(config.cases) * (len(METHODS) + 1)
@@ -412,7 +429,8 @@ def run_quality(config: BenchConfig, workdir: Path, log=None) -> dict:
             row["runs"][key] = {k: v for k, v in entry.items() if v is not None}
             log(f"quality [{done}/{n_runs}] {spec.name} {_label(key)}: {summary}")
         cases.append(row)
-    return {"kind": "quality", "quick": config.quick, "machine": machine_info(),
+    machine["load_average_end"] = load_average()
+    return {"kind": "quality", "quick": config.quick, "machine": machine,
             "config": _config_dict(config), "baseline_rss_mib": (baseline or {}).get(
                 "peak_rss_mib"), "cases": cases, "summary": _quality_summary(cases),
             "targets": _quality_targets(cases), "seconds": time.perf_counter() - t_start}
@@ -637,6 +655,7 @@ def run_speed(config: BenchConfig, workdir: Path, log=None) -> dict:
     """Run the speed benchmark; return the JSON-ready result."""
     log = log or (lambda message: None)
     t_start = time.perf_counter()
+    machine = machine_info()
     paths = _speed_inputs(config, workdir)
     s = config.speed_size
     rows = []
@@ -679,7 +698,8 @@ def run_speed(config: BenchConfig, workdir: Path, log=None) -> dict:
                                f"{LARGE_SHAPE[0]} RGB (12 MP, 8-bit), {SPEED_BLUR:g} px "
                                "rotation", res, "deconvolve_s", (180.0, 6144.0), 1))
         log(f"speed: 12 MP deconvolution: {_speed_log(res, 'deconvolve_s')}")
-    return {"kind": "speed", "quick": config.quick, "machine": machine_info(),
+    machine["load_average_end"] = load_average()
+    return {"kind": "speed", "quick": config.quick, "machine": machine,
             "config": _config_dict(config), "baseline_rss_mib": baseline.get("peak_rss_mib"),
             "rows": rows, "seconds": time.perf_counter() - t_start}
 

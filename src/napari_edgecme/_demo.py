@@ -319,7 +319,7 @@ class _Figures:
             ax.imshow(image, interpolation="nearest")
             ax.set_title(title, fontsize=10)
             ax.set_axis_off()
-        fig.savefig(path, dpi=100)
+        fig.savefig(path, dpi=float(np.clip(w / 3.0, 80, 200)))  # about one pixel per pixel
 
     def write_comparison(self, path) -> None:
         if self.mpl:
@@ -413,8 +413,10 @@ def _report(rows, config, names, have_mpl: bool, seconds: float, out: Path) -> s
         "# edgecme demo",
         "",
         f"{machine['date']} on {machine['node']} ({machine['cpus']} CPUs, "
-        f"{machine['platform']}), napari-edgecme {machine['version']}: "
-        f"{seconds:.0f} s for everything below.",
+        f"{machine['platform']}"
+        + (f", load average {machine['load_average']:.1f}"
+           if machine.get("load_average") is not None else "")
+        + f"), napari-edgecme {machine['version']}: {seconds:.0f} s for everything below.",
         "",
         f"The bundled scikit-image photo `{c['photo']}`, resized to {c['shape'][0]}x"
         f"{c['shape'][1]} px, was shaken with a random hand-shake trajectory of camera "
