@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
-
 from .core.synth import SyntheticCase, edge_scene, make_case, sample_image
 
 __all__ = ["clock_motion", "edge_scene_shake", "synthetic_shake"]
@@ -70,11 +68,12 @@ def edge_scene_shake() -> list[tuple]:
 
 def clock_motion() -> list[tuple]:
     """scikit-image's real motion-blurred photo of a clock (``clock_motion.png``, 300x400)."""
-    import imageio.v3 as iio
     import skimage.data
 
+    from .core.io import read_image
+
     path = os.path.join(os.path.dirname(skimage.data.__file__), "clock_motion.png")
-    image = np.asarray(iio.imread(path))  # (300, 400) uint8, gray
+    image = read_image(path)  # (300, 400) uint8, gray
     return [(image, {"name": "clock (motion blur)", "colormap": "gray",
                      "metadata": {"description": "real motion-blurred photo shipped with "
                                                  "scikit-image (clock_motion.png); motion "

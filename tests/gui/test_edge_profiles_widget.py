@@ -227,3 +227,37 @@ def test_profile_lines_span_the_sampling_window():
                             np.zeros((1, 5)), np.arange(-2.0, 3.0), [1.0])
     # normal angle 0 points along +x (columns): the line runs from col 18 to col 22
     np.testing.assert_allclose(profile_lines(profiles)[0], [[10.0, 18.0], [10.0, 22.0]])
+
+
+@pytest.mark.parametrize("method", ["ep", "xu+ep"])
+def test_epalone_and_xu_ep_estimate_from_the_layers_profiles(qtbot, detected, wait_for_run,
+                                                            notifications, method):
+    pytest.importorskip("napari_edgecme.core.prediction",
+                        reason="the engine's prediction images (I_p, I_ep) are not there yet")
+    d = detected
+    motion = CameraMotionWidget(d.viewer)
+    qtbot.addWidget(motion)
+    motion.reset_choices()
+    motion.image_combo.value = d.image
+    assert motion.profiles_combo.value is d.shapes
+    motion.method_combo.value = method
+    motion.model_combo.value = "inplane"
+    motion.max_blur.auto.setChecked(False)
+    motion.max_blur.spin.setValue(7)
+    motion.n_iter.setValue(1)
+    motion.run_button.click()
+    wait_for_run(motion)
+    assert motion.runner.outcome == "done", notifications.texts()
+    assert motion.last_estimate.info.n_profiles == len(profiles_of(d.shapes))
+    assert f"{d.image.name} PSF field" in [layer.name for layer in d.viewer.layers]
+
+
+def test_a_users_choice_of_profiles_sticks(qtbot, detected):
+    d = detected
+    motion = CameraMotionWidget(d.viewer)
+    qtbot.addWidget(motion)
+    motion.reset_choices()
+    assert motion.profiles_combo.value is d.shapes
+    motion.profiles_combo.value = None  # "detect automatically"
+    motion.reset_choices()  # as napari does whenever a layer is added or removed
+    assert motion.profiles_combo.value is None

@@ -48,6 +48,7 @@ from napari.layers import Image, Layer
 from napari.qt.threading import create_worker
 from napari.utils import progress
 from napari.utils.notifications import show_error, show_info, show_warning
+from qtpy.QtCore import QTimer
 from qtpy.QtWidgets import (
     QCheckBox,
     QDoubleSpinBox,
@@ -60,6 +61,7 @@ from superqt.utils import GeneratorWorker
 
 from ..core.camera import DEFAULT_FOCAL_35MM
 from ..core.estimate import default_max_blur
+from ..core.io import exif_focal_35mm
 from ..core.motion import CameraMotion
 from ..core.progress import Progress
 
@@ -71,6 +73,7 @@ __all__ = [
     "EngineRunner",
     "Failed",
     "MaxBlurControl",
+    "deferred_draw",
     "focal_from_layer",
     "image_layers",
     "motion_from",
@@ -90,11 +93,6 @@ MOTION_KEY = "edgecme_motion"
 PROFILES_KEY = "edgecme_profiles"
 #: Layer-metadata key naming the image layer a result was computed from.
 SOURCE_KEY = "edgecme_source"
-
-# EXIF tags (Exif sub-IFD): FocalLengthIn35mmFilm
-_EXIF_IFD = 0x8769
-_EXIF_FOCAL_35MM = 0xA405
-
 
 # ---------------------------------------------------------------------------------------
 # layers
@@ -208,7 +206,7 @@ def focal_from_layer(layer: Image) -> tuple[float | None, str]:
             return f35 / 36.0 * max(shape), f"{where} ({f35:g} mm equivalent)"
     path = getattr(layer.source, "path", None)
     if path:
-        f35 = _exif_focal_35mm(path)
+        f35 = exif_focal_35mm(path)
         if f35 is not None:
             return f35 / 36.0 * max(shape), f"EXIF of {Path(path).name} ({f35:g} mm equivalent)"
     return None, f"default ({DEFAULT_FOCAL_35MM:g} mm equivalent)"
@@ -225,18 +223,6 @@ def _positive(value) -> float | None:
     except (TypeError, ValueError):
         return None
     return out if math.isfinite(out) and out > 0 else None
-
-
-def _exif_focal_35mm(path) -> float | None:
-    """``FocalLengthIn35mmFilm`` from a photo's EXIF, or None (no file, no tag, no reader)."""
-    try:
-        from PIL import Image as PILImage
-
-        with PILImage.open(path) as im:
-            return _positive(im.getexif().get_ifd(_EXIF_IFD).get(_EXIF_FOCAL_35MM))
-    except Exception:  # any unreadable file simply has no usable EXIF
-        logger.debug("no EXIF focal length in %s", path, exc_info=True)
-        return None
 
 
 # ---------------------------------------------------------------------------------------
@@ -610,6 +596,19 @@ def plot_canvas(viewer, n_axes: int, height: float = 2.6, left_margin: int = 48,
         style_axes(ax, fg, bg)
     canvas.setMinimumHeight(int(height * 72))
     return canvas, axes
+
+
+def deferred_draw(canvas) -> Callable[[], None]:
+    """A function that redraws ``canvas`` once the event loop is idle (calls coalesce).
+
+    Like matplotlib's ``draw_idle``, but the timer is a child of the canvas: when the
+    widget is deleted with a redraw still pending, the timer goes with it.
+    """
+    timer = QTimer(canvas)
+    timer.setSingleShot(True)
+    timer.setInterval(0)
+    timer.timeout.connect(canvas.draw)
+    return timer.start
 
 
 def style_axes(ax, fg: str, bg: str) -> None:

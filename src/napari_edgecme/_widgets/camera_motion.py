@@ -50,6 +50,7 @@ from ._common import (
     EngineRunner,
     MaxBlurControl,
     default_focal_px,
+    deferred_draw,
     first_line,
     focal_from_layer,
     image_layers,
@@ -98,6 +99,7 @@ class CameraMotionWidget(QWidget):
         super().__init__(parent)
         self._viewer = viewer
         self._preview: Image | None = None
+        self._suggested: Shapes | None = None
         self.last_motion: CameraMotion | None = None
         self.last_estimate: MotionEstimate | None = None
         self._last_name = ""
@@ -158,6 +160,7 @@ class CameraMotionWidget(QWidget):
         self.canvas, axes = plot_canvas(viewer, 1, height=2.8, left_margin=60,
                                         right_margin=16)
         self._has_plot = bool(axes)
+        self._redraw = deferred_draw(self.canvas) if axes else (lambda: None)
         self._colours = theme_colours(viewer)
 
         focal_row = QHBoxLayout()
@@ -216,11 +219,12 @@ class CameraMotionWidget(QWidget):
         shape = image_shape(layer)
         self.max_blur.show_default_for(shape)
         self._update_focal_hint()
-        if self.profiles_combo.value is None:  # offer the image's own hand-edited profiles
-            for _name, shapes in self._profile_choices()[1:]:
-                if shapes.metadata.get(SOURCE_KEY) == layer.name:
-                    self.profiles_combo.value = shapes
-                    break
+        # offer the image's own (hand-edited) profiles once; a later choice of the user sticks
+        own = next((shapes for _name, shapes in self._profile_choices()[1:]
+                    if shapes.metadata.get(SOURCE_KEY) == layer.name), None)
+        if own is not None and own != self._suggested:
+            self._suggested = own
+            self.profiles_combo.value = own
 
     def _on_method_changed(self, method) -> None:
         uses_profiles = method != "xu"
@@ -382,7 +386,7 @@ class CameraMotionWidget(QWidget):
         style_axes(ax, fg, bg)
         if motion is None:
             ax.set_title("motion in pose space (run an estimation)", fontsize=8)
-            self.canvas.draw_idle()
+            self._redraw()
             return
         names = param_names(motion.model)
         poses = np.array(motion.poses, float)
@@ -412,7 +416,7 @@ class CameraMotionWidget(QWidget):
         ax.relim()
         ax.autoscale_view()
         ax.set_aspect("equal", adjustable="datalim")
-        self.canvas.draw_idle()
+        self._redraw()
 
 
 def _float_spin(value: float, low: float, high: float, decimals: int, tip: str) -> QDoubleSpinBox:

@@ -52,6 +52,7 @@ from ._common import (
     Connections,
     EngineRunner,
     MaxBlurControl,
+    deferred_draw,
     first_line,
     image_layers,
     image_shape,
@@ -156,6 +157,7 @@ class EdgeProfilesWidget(QWidget):
         self.plot_caption = QLabel("")
         self.plot_caption.setWordWrap(True)
         self.canvas, self._axes = plot_canvas(viewer, 2)
+        self._redraw = deferred_draw(self.canvas) if self._axes else (lambda: None)
 
         form = QFormLayout()
         form.addRow("image", self.image_combo.native)
@@ -532,7 +534,7 @@ class EdgeProfilesWidget(QWidget):
             ax_p.set_ylim(-0.05, 1.05)
             ax_d.set_ylim(0.0, 1.08 * max(top, 1e-3))
         self.plot_caption.setText(caption)
-        self.canvas.draw_idle()
+        self._redraw()
 
 
 class _LineFinder:
