@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -134,7 +135,7 @@ def test_bench_smallest_configuration_writes_markdown_and_json(tmp_path, capsys)
     assert quality["machine"]["cpus"] >= 1 and quality["machine"]["node"]
     text = (out / "quality-quick.md").read_text()
     assert "| method | succeeded | mean PSNR (dB)" in text
-    assert "| camera-inplane-13px |" in text and "ru_maxrss" in text
+    assert "| camera-inplane-13px |" in text and "VmHWM" in text
 
     speed = json.loads((out / "speed-quick.json").read_text())
     tasks = {r["task"].split(",")[0]: r for r in speed["rows"]}
@@ -149,6 +150,15 @@ def test_bench_worker_reports_a_failure_as_data(tmp_path):
     res = _bench.run_job({"kind": "deconvolve", "image": str(tmp_path / "missing.npy"),
                           "motion": str(tmp_path / "missing.json")}, timeout=120)
     assert res["ok"] is False and "FileNotFoundError" in res["error"]
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="Linux /proc only")
+def test_a_worker_reports_its_own_peak_memory_not_its_parents(tmp_path):
+    np.save(tmp_path / "image.npy", np.zeros((64, 64), np.float32))
+    ballast = np.ones(2**26)  # 512 MiB held by this (the parent) process
+    res = _bench.run_job({"kind": "baseline", "image": str(tmp_path / "image.npy")}, 120)
+    assert res["ok"] and 30 < res["peak_rss_mib"] < 400, res
+    del ballast
 
 
 def test_quality_cases_cover_the_issue_grid():

@@ -23,10 +23,14 @@ Speed
 Peak memory
     Every estimation or deconvolution runs in a fresh Python process (this module run
     as ``python -m napari_edgecme._bench``, reading a job as JSON on stdin), which
-    reports its own peak resident set size (``getrusage(RUSAGE_SELF).ru_maxrss``)
-    when it ends. The figure therefore includes the interpreter, numpy, scipy and
-    scikit-image and the loaded input: the *baseline* of a process that only imports
-    the engine and loads the input is reported beside it.
+    reports its own peak resident set size when it ends: ``VmHWM`` from
+    ``/proc/self/status`` on Linux (``getrusage`` elsewhere). ``ru_maxrss`` is not used
+    on Linux because a child inherits its parent's high-water mark through fork and
+    exec (``RUSAGE_CHILDREN`` has the same flaw): a worker started by a parent that
+    holds the 12 MP test image would report the parent's memory. The figure includes
+    the interpreter, numpy, scipy and scikit-image and the loaded input: the
+    *baseline* of a process that only imports the engine and loads the input is
+    reported beside it.
 
 Timings are wall-clock seconds on a possibly shared machine; where a run repeats the
 median is reported. A run that raises (e.g. EpAlone on an image with too few edge
@@ -250,6 +254,21 @@ def _f(value, spec: str, empty: str = "—") -> str:
 # --------------------------------------------------------------------------------------
 
 def _peak_rss_mib() -> float | None:
+    """Peak resident set size of this process (MiB), since it started.
+
+    Linux: ``VmHWM`` of ``/proc/self/status``, the high-water mark of this process's
+    own address space. Not ``getrusage().ru_maxrss``: Linux carries the parent's
+    high-water mark over fork and exec into the child's ``ru_maxrss`` (a worker
+    started by a parent holding 2 GiB reports at least 2 GiB), and
+    ``RUSAGE_CHILDREN`` has the same flaw. Elsewhere ``ru_maxrss`` is the best there is.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 2**10  # kB
+    except OSError:
+        pass
     try:
         import resource
     except ImportError:  # Windows
@@ -589,9 +608,10 @@ def quality_markdown(result: dict) -> str:
 def _memory_note(baseline) -> str:
     base = f" ({baseline:.0f} MiB here)" if baseline else ""
     return ("Peak RSS: each run is a fresh Python process reporting its own peak resident "
-            "set size (`getrusage(RUSAGE_SELF).ru_maxrss`); it includes the interpreter, "
-            f"the libraries and the loaded input, i.e. the baseline of a process that only "
-            f"imports the engine and loads the input{base}.")
+            "set size (`VmHWM` of `/proc/self/status`; not `ru_maxrss`, which on Linux "
+            "inherits the parent's high-water mark through fork and exec). It includes the "
+            "interpreter, the libraries and the loaded input, i.e. the baseline of a process "
+            f"that only imports the engine and loads the input{base}.")
 
 
 # --------------------------------------------------------------------------------------
