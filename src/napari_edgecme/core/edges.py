@@ -133,6 +133,13 @@ class EdgeProfiles:
         straightness, agreement with neighbours, flat margin length).
     reason : str
         Empty when ``n > 0``; otherwise why no profile was found.
+    curvature : array_like of shape (n,), optional
+        Signed curvature (1/px) of the edge at the centroid: the edge runs through
+        ``centroid + s * tangent + (curvature / 2) * s**2 * normal``. Zero by default.
+    window : array_like of shape (n,), optional
+        Half-length (px) of the window, centred on the centroid, over which the profile
+        was validated (flat plateaus, no other edge). Default: the whole grid,
+        ``max(|offsets|)``.
     image_shape : tuple of int, optional
         ``(rows, cols)`` of the image the profiles come from.
     max_blur : float, optional
@@ -147,7 +154,8 @@ class EdgeProfiles:
     """
 
     def __init__(self, centroids, normal_angle, c1, c2, profiles, derivatives, offsets,
-                 quality, reason: str = "", image_shape=None, max_blur=None, stats=None):
+                 quality, reason: str = "", image_shape=None, max_blur=None, stats=None,
+                 curvature=None, window=None):
         self.offsets = np.asarray(offsets, dtype=float).reshape(-1)
         N = self.offsets.size
         self.centroids = np.asarray(centroids, dtype=float).reshape(-1, 2)
@@ -156,6 +164,10 @@ class EdgeProfiles:
         self.c1 = _vector(c1, n, "c1")
         self.c2 = _vector(c2, n, "c2")
         self.quality = _vector(quality, n, "quality")
+        self.curvature = np.zeros(n) if curvature is None else _vector(curvature, n,
+                                                                       "curvature")
+        full = float(np.max(np.abs(self.offsets))) if N else 0.0
+        self.window = np.full(n, full) if window is None else _vector(window, n, "window")
         self.profiles = np.asarray(profiles, dtype=float).reshape(n, N) if n else np.zeros((0, N))
         self.derivatives = (np.asarray(derivatives, dtype=float).reshape(n, N) if n
                             else np.zeros((0, N)))
@@ -215,7 +227,8 @@ class EdgeProfiles:
                             self.c2[idx], self.profiles[idx], self.derivatives[idx],
                             self.offsets, self.quality[idx], reason=reason,
                             image_shape=self.image_shape, max_blur=self.max_blur,
-                            stats=self.stats)
+                            stats=self.stats, curvature=self.curvature[idx],
+                            window=self.window[idx])
 
     def select(self, mask) -> EdgeProfiles:
         """The profiles where the boolean ``mask`` of shape (n,) is true."""
@@ -244,7 +257,7 @@ class EdgeProfiles:
             return cls.empty(items[0].reason, offsets, shape, blur)
         cat = [np.concatenate(x) for x in zip(*parts, strict=True)]
         return cls(cat[0], cat[1], cat[2], cat[3], cat[4], cat[5], offsets, cat[6],
-                   image_shape=shape, max_blur=blur)
+                   image_shape=shape, max_blur=blur, curvature=cat[7], window=cat[8])
 
     def _padded(self, R):
         r = round(np.max(np.abs(self.offsets)))
@@ -254,7 +267,8 @@ class EdgeProfiles:
         prof = np.pad(self.profiles, ((0, 0), (pad, 0)), constant_values=0.0)
         prof = np.pad(prof, ((0, 0), (0, pad)), constant_values=1.0)
         der = np.pad(self.derivatives, ((0, 0), (pad, pad)))
-        return (self.centroids, self.normal_angle, self.c1, self.c2, prof, der, self.quality)
+        return (self.centroids, self.normal_angle, self.c1, self.c2, prof, der, self.quality,
+                self.curvature, self.window)
 
     # -- pyramids -----------------------------------------------------------------------
     def rescaled(self, factor: float) -> EdgeProfiles:
@@ -290,7 +304,8 @@ class EdgeProfiles:
         prof = _interp_rows(new_off / factor, self.offsets, self.profiles, 0.0, 1.0)
         cen = (self.centroids + 0.5) * factor - 0.5
         return EdgeProfiles(cen, self.normal_angle, self.c1, self.c2, prof, der, new_off,
-                            self.quality, image_shape=shape, max_blur=blur, stats=self.stats)
+                            self.quality, image_shape=shape, max_blur=blur, stats=self.stats,
+                            curvature=self.curvature / factor, window=self.window * factor)
 
     # -- files -----------------------------------------------------------------------------
     def to_dict(self) -> dict:
@@ -307,6 +322,8 @@ class EdgeProfiles:
             "c1": self.c1.tolist(),
             "c2": self.c2.tolist(),
             "quality": self.quality.tolist(),
+            "curvature": self.curvature.tolist(),
+            "window": self.window.tolist(),
             "profiles": self.profiles.tolist(),
             "derivatives": self.derivatives.tolist(),
             "stats": _jsonable(self.stats),
@@ -360,12 +377,25 @@ class EdgeProfiles:
         except (TypeError, ValueError):
             raise ValueError("profile file 'image_shape'/'max_blur' are malformed") from None
         stats = data.get("stats") if isinstance(data.get("stats"), dict) else {}
+        optional = {}
+        for key in ("curvature", "window"):
+            if data.get(key) is None or n <= 0:
+                continue
+            try:
+                arr = np.asarray(data[key], dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f"profile file entry {key!r} is not a numeric array") from None
+            if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+                raise ValueError(f"profile file entry {key!r} must hold n={n} finite "
+                                 f"numbers; got shape {arr.shape}")
+            optional[key] = arr
         if n == 0:
             return cls.empty(str(data.get("reason") or "no edge profiles"), arrays["offsets"],
                              shape, blur, stats)
         return cls(arrays["centroids"], arrays["normal_angle"], arrays["c1"], arrays["c2"],
                    arrays["profiles"], arrays["derivatives"], arrays["offsets"],
-                   arrays["quality"], image_shape=shape, max_blur=blur, stats=stats)
+                   arrays["quality"], image_shape=shape, max_blur=blur, stats=stats,
+                   **optional)
 
     def save(self, path) -> None:
         """Write the profiles as JSON, atomically (temporary file + rename)."""
@@ -790,7 +820,8 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
     stats["kept"] = len(idx)
     return EdgeProfiles(prof["centroid"][idx], prof["angle"][idx], res["c1"][idx],
                         res["c2"][idx], prof["alpha"][idx], prof["deriv"][idx], offsets,
-                        quality[idx], image_shape=shape, max_blur=max_blur, stats=stats)
+                        quality[idx], image_shape=shape, max_blur=max_blur, stats=stats,
+                        curvature=res["curvature"][idx], window=prof["window"][idx])
 
 
 def _settings(img, max_blur, min_contrast, min_snr, flat_tol, monotone_tol, straight_tol,
@@ -1119,6 +1150,7 @@ def _two_pass(img, centres, angles, geom: _Geometry, tests: _Tests, max_tilt_pas
     # was measured along the pass-2 normal, ``sample_angle``)
     res["sample_angle"] = angle2
     res["angle"] = np.where(reason == 0, angle2 - res.get("tilt", 0.0), angle2)
+    res["curvature"] = 2.0 * (r1["bend"] + res.get("bend", 0.0))
     return res
 
 
@@ -1135,7 +1167,10 @@ def _finish(res: dict, geom: _Geometry) -> dict:
     deriv = np.clip(np.diff(cdf, axis=1), 0.0, None)
     deriv /= np.maximum(deriv.sum(1, keepdims=True), 1e-300)
     alpha = _interp_rows(centroid_off[:, None] + offsets[None, :], t, res["alpha"], 0.0, 1.0)
-    return {"centroid": centre, "angle": _wrap(res["angle"]), "deriv": deriv, "alpha": alpha}
+    # the window was validated about the pass-2 centre, not about the final centroid
+    window = np.maximum(res["window"] - np.abs(centroid_off), 0.0)
+    return {"centroid": centre, "angle": _wrap(res["angle"]), "deriv": deriv, "alpha": alpha,
+            "window": window}
 
 
 def _interp_rows(x, xp, fp, left, right) -> np.ndarray:
@@ -1407,13 +1442,15 @@ saturation
     if r2["reason"][0] != 0:
         return refuse(REASONS[int(r2["reason"][0])])
     r2["centre"] = c[None]
+    r2["curvature"] = 2.0 * (r1["bend"] + r2["bend"])
     r2["sample_angle"] = np.array([angle2])
     r2["angle"] = np.array([angle2 - float(r2["tilt"][0])])
     prof = _finish(r2, geom)
     quality = _quality(r2, np.full(1, np.nan), geom, tests)
     return EdgeProfiles(prof["centroid"], prof["angle"], r2["c1"], r2["c2"], prof["alpha"],
                         prof["deriv"], offsets, quality, image_shape=img.shape,
-                        max_blur=max_blur, stats=stats)
+                        max_blur=max_blur, stats=stats, curvature=r2["curvature"],
+                        window=prof["window"])
 
 
 # ---------------------------------------------------------------------------------------
