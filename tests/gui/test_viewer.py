@@ -50,8 +50,18 @@ def test_the_three_widgets_dock_run_and_leave_a_screenshot(make_napari_viewer_pr
     profiles.detect_button.click()
     wait_for_run(profiles)
     assert profiles.runner.outcome == "done"
+    assert [layer.name for layer in viewer.layers] == [
+        "shaken", "shaken edge profiles", "shaken profile centroids"]
     shapes = viewer.layers["shaken edge profiles"]
-    assert len(shapes.data) == len(shapes.metadata["edgecme_profiles"]) >= 12
+    found = shapes.metadata["edgecme_profiles"]
+    assert len(shapes.data) == len(found) >= 12
+    # a hand pick across the first profile's edge, after deleting its line
+    centre, normal = found.centroids[0], found.normals[0]
+    shapes.selected_data = {0}
+    shapes.remove_selected()
+    shapes.add_lines([np.array([centre - 9 * normal, centre + 9 * normal])])
+    qtbot.waitUntil(lambda: shapes.metadata["edgecme_profile_origin"][-1:] == ["hand"])
+    assert len(shapes.metadata["edgecme_profiles"]) == len(shapes.data) == len(found)
 
     # Camera motion (Xu, the baseline), with the live preview
     motion.method_combo.value = "xu"

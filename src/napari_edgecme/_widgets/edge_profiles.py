@@ -298,13 +298,12 @@ class EdgeProfilesWidget(QWidget):
                         metadata={SOURCE_KEY: image.name, PROFILES_KEY: profiles,
                                   ORIGIN_KEY: list(origins)},
                         **spatial_kwargs(image))
-        points = Points(np.zeros((0, 2)), name=f"{image.name} profile centroids",
-                        size=max(3.0, max(shape) / 100.0), border_width=0,
-                        metadata={SOURCE_KEY: image.name, _ROLE_KEY: _CENTROIDS_ROLE},
-                        **spatial_kwargs(image))
+        points = _centroids_layer(image)
+        # attached before they are added: adding them makes napari reset the choices,
+        # which adopts profile layers it does not know yet
+        rec = self._attach(shapes, image, points)
         self._viewer.add_layer(shapes)
         self._viewer.add_layer(points)
-        rec = self._attach(shapes, image, points)
         self._render(rec, profiles, origins)
         return rec
 
@@ -327,14 +326,9 @@ class EdgeProfilesWidget(QWidget):
         finally:
             self._rendering = False
         points = rec.points
-        if points is None or points not in self._viewer.layers:
-            points = Points(np.zeros((0, 2)), name=f"{rec.image.name} profile centroids",
-                            size=max(3.0, max(image_shape(rec.image)) / 100.0),
-                            border_width=0,
-                            metadata={SOURCE_KEY: rec.image.name, _ROLE_KEY: _CENTROIDS_ROLE},
-                            **spatial_kwargs(rec.image))
+        if points is None or points not in self._viewer.layers:  # deleted by the user
+            points = rec.points = _centroids_layer(rec.image)
             self._viewer.add_layer(points)
-            rec.points = points
         points.data = profiles.centroids
         points.features = {"quality": profiles.quality, "origin": origins}
         if len(profiles):
@@ -342,6 +336,9 @@ class EdgeProfilesWidget(QWidget):
 
     # -- attached profile layers -------------------------------------------------------------
     def _attach(self, shapes: Shapes, image: Image, points: Points | None) -> _ProfileLayers:
+        known = self._record_for_shapes(shapes)
+        if known is not None:
+            return known
         rec = _ProfileLayers(shapes, image, points)
         self._attached.append(rec)
         self._connections.connect(shapes.events.data, self._on_shapes_data, key=shapes)
@@ -535,6 +532,14 @@ class EdgeProfilesWidget(QWidget):
             ax_d.set_ylim(0.0, 1.08 * max(top, 1e-3))
         self.plot_caption.setText(caption)
         self._redraw()
+
+
+def _centroids_layer(image: Image) -> Points:
+    """An empty Points layer for the profile centroids of ``image``, aligned with it."""
+    return Points(np.zeros((0, 2)), name=f"{image.name} profile centroids",
+                  size=max(3.0, max(image_shape(image)) / 100.0), border_width=0,
+                  metadata={SOURCE_KEY: image.name, _ROLE_KEY: _CENTROIDS_ROLE},
+                  **spatial_kwargs(image))
 
 
 class _LineFinder:
