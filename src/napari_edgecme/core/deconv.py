@@ -104,23 +104,34 @@ SOLVERS = ("fourier", "cg")
 #: Default parameters per method (see :func:`deconvolve`), plus the ones all methods take.
 DEFAULTS = {
     "hyperlaplacian": {
-        "lam": 3000.0,
+        "lam": 1500.0,
         "alpha": 2.0 / 3.0,
         "beta_start": 1.0,
         "beta_rate": 2.0 * math.sqrt(2.0),
         "beta_max": 256.0,
         "inner_iterations": 1,
         "solver": "fourier",
-        "cg_iterations": 40,
-        "cg_tol": 1e-3,
+        "cg_iterations": 10,
+        "cg_tol": 1e-4,
     },
     "rl": {"iterations": 30},
-    "wiener": {"nsr": 3e-3},
-    "common": {"block_size": 1024, "stride": None, "preview": False},
+    "wiener": {"nsr": 1e-2},
+    "common": {"block_size": 2048, "stride": None, "preview": False},
 }
 
 #: Smallest accepted block size (pixels).
 MIN_BLOCK = 64
+
+#: Automatic EFF tile size (``stride=None``): PSF drift allowed across half a tile (px)
+#: and the range of tile sizes.
+PSF_DRIFT = 0.5
+MIN_STRIDE = 32
+MAX_STRIDE = 256
+
+#: Patch-wise Fourier solver: box margin beyond each EFF window, in PSF sizes, and
+#: conjugate-gradient iterations on the border tiles' masked problems per image step.
+FOURIER_MARGIN = 1.0
+FOURIER_BORDER_ITERATIONS = {"hyperlaplacian": 4, "wiener": 8}
 
 
 def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
@@ -294,6 +305,30 @@ def _psf_extent(motion: CameraMotion) -> int:
     return psf_size_for(motion.displacements(pts))
 
 
+def _psf_drift_rate(motion: CameraMotion, n: int = 9, delta: float = 4.0) -> float:
+    """How fast the PSF changes across the image: the largest change of any pose's
+    displacement per pixel of image distance (px/px), over an ``n x n`` grid."""
+    rows, cols = motion.image_shape
+    r = np.linspace(0, rows - 1, n)
+    c = np.linspace(0, cols - 1, n)
+    pts = np.stack(np.meshgrid(r, c, indexing="ij"), -1).reshape(-1, 2)
+    d0 = motion.displacements(pts)
+    rate = 0.0
+    for step in ((delta, 0.0), (0.0, delta)):
+        d1 = motion.displacements(pts + np.array(step))
+        rate = max(rate, float(np.max(np.hypot(*(d1 - d0).transpose(2, 0, 1)))) / delta)
+    return rate
+
+
+def _auto_stride(motion: CameraMotion) -> int:
+    """EFF tile size for deconvolution: as large as possible (cheaper per pixel) while
+    the PSF drifts by at most :data:`PSF_DRIFT` px between a tile's centre and its
+    window's half-width (``stride / 2``); within [:data:`MIN_STRIDE`, :data:`MAX_STRIDE`]."""
+    rate = _psf_drift_rate(motion)
+    stride = MAX_STRIDE if rate <= 0 else 2.0 * PSF_DRIFT / rate
+    return int(np.clip(stride, MIN_STRIDE, MAX_STRIDE))
+
+
 class _BlockPlan:
     """Overlapping blocks that cross-fade (windows summing to one) and their observed boxes."""
 
@@ -334,71 +369,81 @@ class _BlockPlan:
         out[wr0:wr1, wc0:wc1] += block["window"].astype(out.dtype) * part
 
 
+def _block_solver(method: str, opts: dict):
+    """``(iterations per block and channel, start(domain, fourier, g, state) -> generator)``."""
+    if method == "hyperlaplacian":
+        betas = _betas(opts)
+
+        def start(domain, fourier, g, state):
+            return hyperlaplacian_steps(
+                domain, g, lam=opts["lam"], alpha=opts["alpha"], betas=betas,
+                inner_iterations=opts["inner_iterations"], solver=opts["solver"],
+                fourier=fourier, cg_iterations=opts["cg_iterations"], cg_tol=opts["cg_tol"],
+                border_iterations=FOURIER_BORDER_ITERATIONS["hyperlaplacian"], state=state)
+        return len(betas) * opts["inner_iterations"], start
+    if method == "rl":
+        def start(domain, fourier, g, state):
+            return richardson_lucy_steps(domain, g, iterations=opts["iterations"], state=state)
+        return opts["iterations"], start
+
+    def start(domain, fourier, g, state):
+        return wiener(domain, g, nsr=opts["nsr"], fourier=fourier,
+                      border_iterations=FOURIER_BORDER_ITERATIONS["wiener"], state=state)
+    return 1, start
+
+
 def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
+    """The block loop behind :func:`iter_deconvolve` (inputs already validated)."""
     dtype = img.dtype
     H, W = img.shape[:2]
     channels = [img] if img.ndim == 2 else [img[..., c] for c in range(img.shape[2])]
     nc = len(channels)
     K = _psf_extent(motion)
-    pad = (K - 1) // 2 + 2
+    pad = (K - 1) // 2 + 2  # latent pixels beyond the observed box: the PSF reach + slack
     plan = _BlockPlan((H, W), opts["block_size"], K)
     nb = len(plan)
-    if method == "hyperlaplacian":
-        betas = _betas(opts)
-        per = len(betas) * opts["inner_iterations"]
-    elif method == "rl":
-        per = opts["iterations"]
-    else:
-        per = 1
+    stride = opts["stride"] if opts["stride"] is not None else _auto_stride(motion)
+    use_fourier = method == "wiener" or (method == "hyperlaplacian"
+                                         and opts["solver"] == "fourier")
+    per, start = _block_solver(method, opts)
     total = nb * nc * per
     out = np.zeros((nc, H, W), dtype)
+    state: dict = {}  # the running solver's current iterate, state["x"]
     step = 0
-    state: dict = {}
-    current = None  # (block index, channel index) being solved
+    current = (0, -1)  # (block, channel) being solved; earlier pairs are in ``out``
+    inner = None
 
-    def assemble(pending_x=None) -> np.ndarray:
-        """Finished blocks + the running block's iterate + the input where nothing ran."""
+    def assemble() -> np.ndarray:
+        """Finished blocks, the running block's iterate, and the input where nothing ran."""
         res = out.copy()
-        for b in range(nb):
+        for b, blk in enumerate(plan.blocks):
+            r0, r1, c0, c1 = blk["box"]
             for c in range(nc):
                 if (b, c) < current:
                     continue
-                blk = plan.blocks[b]
-                r0, r1, c0, c1 = blk["box"]
-                if (b, c) == current and pending_x is not None:
-                    part = pending_x[domain_inner]
+                if (b, c) == current and "x" in state:
+                    plan.add(res[c], blk, state["x"][inner])
                 else:
-                    part = channels[c][r0:r1, c0:c1]
-                plan.add(res[c], blk, part)
-        res = res[0] if img.ndim == 2 else np.moveaxis(res, 0, -1)
-        return np.ascontiguousarray(np.clip(res, 0, 1))
+                    plan.add(res[c], blk, channels[c][r0:r1, c0:c1])
+        return _as_output(res, img.ndim, dtype)
 
     try:
         for b, blk in enumerate(plan.blocks):
-            domain = LatentDomain(motion, blk["box"], pad, opts["stride"], dtype)
-            domain_inner = domain.inner
+            where_b = f"block {b + 1}/{nb}, " if nb > 1 else ""
+            domain = LatentDomain(motion, blk["box"], pad, stride, dtype)
+            inner = domain.inner
+            yield Progress("deconvolve", step, total, f"{where_b}blur operator ready")
             fourier = None
-            if method == "wiener" or (method == "hyperlaplacian" and opts["solver"] == "fourier"):
-                fourier = PatchFourier(domain, margin=K)
+            if use_fourier:
+                fourier = PatchFourier(domain, margin=max(8, round(FOURIER_MARGIN * K)))
+                yield Progress("deconvolve", step, total, f"{where_b}tile spectra ready")
             r0, r1, c0, c1 = blk["box"]
             for c in range(nc):
                 current = (b, c)
                 state.clear()
-                g = np.ascontiguousarray(channels[c][r0:r1, c0:c1])
-                if method == "hyperlaplacian":
-                    gen = hyperlaplacian_steps(
-                        domain, g, lam=opts["lam"], alpha=opts["alpha"], betas=betas,
-                        inner_iterations=opts["inner_iterations"], solver=opts["solver"],
-                        fourier=fourier, cg_iterations=opts["cg_iterations"],
-                        cg_tol=opts["cg_tol"], refine=1, state=state)
-                elif method == "rl":
-                    gen = richardson_lucy_steps(domain, g, iterations=opts["iterations"],
-                                                state=state)
-                else:
-                    gen = wiener(domain, g, nsr=opts["nsr"], fourier=fourier, refine=3,
-                                 state=state)
-                where = f"block {b + 1}/{nb}, " if nb > 1 else ""
-                where += f"channel {c + 1}/{nc}, " if nc > 1 else ""
+                where = where_b + (f"channel {c + 1}/{nc}, " if nc > 1 else "")
+                gen = start(domain, fourier, np.ascontiguousarray(channels[c][r0:r1, c0:c1]),
+                            state)
                 k = 0
                 while True:
                     try:
@@ -411,36 +456,39 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
                         step += 1
                         k += 1
                         if opts["preview"]:
-                            preview = assemble(state.get("x"))
-                    yield Progress("deconvolve", min(step, total), total,
+                            preview = assemble()
+                    yield Progress("deconvolve", step, total,
                                    _message(method, where, k, per, info), iteration=k,
                                    preview=preview)
                 plan.add(out[c], blk, x[domain.inner])
             current = (b + 1, -1)
     except StopRequested:
-        result = assemble(state.get("x"))
-        finished = step
+        result = assemble()
         try:
-            yield Progress("deconvolve", min(finished, total), total,
-                           f"stopped by request after {finished}/{total} iterations; "
-                           "returning the image restored so far")
+            yield Progress("deconvolve", step, total,
+                           f"stopped by request after {step}/{total} iterations; returning "
+                           "the image restored so far (unrestored where not reached)")
         except StopRequested:
             pass
-        return result.astype(dtype, copy=False)
-    current = (nb, 0)
-    res = out[0] if img.ndim == 2 else np.moveaxis(out, 0, -1)
+        return result
+    return _as_output(out, img.ndim, dtype)
+
+
+def _as_output(planes: np.ndarray, ndim: int, dtype) -> np.ndarray:
+    """(C, H, W) planes -> (H, W) or (H, W, C), clipped to [0, 1], contiguous."""
+    res = planes[0] if ndim == 2 else np.moveaxis(planes, 0, -1)
     return np.ascontiguousarray(np.clip(res, 0, 1), dtype=dtype)
 
 
-def _message(method, where, k, per, info) -> str:
-    """One line for a record: ``info`` is empty inside an iteration (a chunk of tiles)."""
+def _message(method: str, where: str, k: int, per: int, info: dict) -> str:
+    """One line for a record; ``info`` is empty for records inside an iteration."""
+    name = {"hyperlaplacian": "half-quadratic step", "rl": "Richardson-Lucy iteration",
+            "wiener": "Wiener filter"}[method]
     if "beta" in info:
-        return f"{where}half-quadratic step {k}/{per} done (beta {info['beta']:.3g})"
+        return f"{where}{name} {k}/{per} done (beta {info['beta']:.3g})"
     if "cg" in info:
-        return (f"{where}half-quadratic step {k + 1}/{per}: CG iteration {info['cg']}, "
+        return (f"{where}{name} {k + 1}/{per}: CG iteration {info['cg']}, "
                 f"relative residual {info['residual']:.1e}")
-    if method == "rl":
-        return f"{where}Richardson-Lucy iteration {k}/{per}"
-    if method == "wiener":
-        return f"{where}Wiener filter {'done' if info else 'running'}"
-    return f"{where}half-quadratic step {k + 1}/{per} running"
+    if info:
+        return f"{where}{name} {k}/{per} done"
+    return f"{where}{name} {k + 1}/{per} running"

@@ -51,7 +51,7 @@ __all__ = [
 ]
 
 #: Bytes of complex spectra processed per chunk of tiles in :class:`PatchFourier`.
-_CHUNK_BYTES = 48 * 2**20
+_CHUNK_BYTES = 16 * 2**20
 
 
 class LatentDomain:
@@ -84,6 +84,10 @@ class LatentDomain:
     def __init__(self, motion: CameraMotion, box, pad: int, stride=None, dtype=np.float32):
         r0, r1, c0, c1 = (int(b) for b in box)
         self.box = (r0, r1, c0, c1)
+        rows, cols = motion.image_shape
+        #: which sides of the observed rectangle are the image's own border
+        #: (top, bottom, left, right); the others are cuts between blocks
+        self.image_edges = (r0 == 0, r1 == rows, c0 == 0, c1 == cols)
         self.pad = int(pad)
         self.observed_shape = (r1 - r0, c1 - c0)
         self.shape = (r1 - r0 + 2 * self.pad, c1 - c0 + 2 * self.pad)
@@ -117,39 +121,48 @@ class LatentDomain:
 # --------------------------------------------------------------------------------------
 
 def _fast_box(patch: int, margin: int) -> int:
-    """Smallest FFT-friendly length >= patch + 2 margin with an even excess over ``patch``."""
-    n = sfft.next_fast_len(patch + 2 * margin, real=True)
-    while (n - patch) % 2:
-        n = sfft.next_fast_len(n + 1, real=True)
-    return n
+    """Smallest FFT-friendly length >= ``patch + 2 margin``."""
+    return sfft.next_fast_len(patch + 2 * margin, real=True)
+
+
+def _rv(spec: np.ndarray) -> np.ndarray:
+    """The real view of a C-contiguous complex array: (..., n) complex -> (..., 2n) real.
+
+    Multiplying it by a real array whose entries are repeated in pairs scales each
+    complex entry by a real number without complex arithmetic."""
+    return spec.view(spec.real.dtype)
 
 
 class PatchFourier:
-    """Closed-form image step per EFF tile, blended by the EFF windows.
+    r"""Closed-form image step per EFF tile, blended by the EFF windows.
 
     For each tile ``r`` of the operator's :class:`~napari_edgecme.core.operators.PatchGrid`
     a box around its window (grown by ``margin`` pixels on every side) is solved in
     closed form with the tile's PSF ``k_r``, as if the blur were the circular
     convolution with ``k_r`` inside the box:
 
-    .. math::  \\hat f_r = \\frac{\\lambda \\overline{\\hat k_r} \\hat y_r + \\widehat{(D^T z)}_r}
-               {\\lambda |\\hat k_r|^2 + \\beta (|\\hat d_x|^2 + |\\hat d_y|^2)}   (KF Eq. 3)
+    .. math::  \hat f_r = \frac{\lambda \overline{\hat k_r} \hat y_r + \widehat{(D^T z)}_r}
+               {\lambda |\hat k_r|^2 + \beta (|\hat d_x|^2 + |\hat d_y|^2)}   (KF Eq. 3)
 
-    (``z`` = ``beta w``, the prior's pull; ``z = 0`` gives the Wiener filter), and the
+    (``z = beta w``, the prior's pull; ``z = 0`` gives the Wiener filter), and the
     solution is ``f = sum_r omega_r C_r^T f_r`` with the EFF windows ``omega_r``, which
-    sum to one. The margin keeps the wrap-around of the circular model away from the
-    window. Boxes that reach beyond the observed rectangle (border tiles) have unknown
-    data there; they are handled by majorise-minimise on the masked data term: the
-    missing data are filled with the tile's own blurred estimate ``k_r * f_r``
-    (initially with the mirrored observation), which makes each border tile's
-    quadratic a majoriser of its masked data term that touches it at the current
-    estimate.
+    sum to one. The margin keeps the box edges away from the window.
+
+    The circular model cannot use the data within the PSF half-width of the box edge
+    (they see latent pixels outside the box, wrapped around). Interior tiles replace
+    them once by the circular blur of the box's own data -- periodic and consistent,
+    so the box solve has no wrap-around ringing. *Border tiles*, whose boxes reach
+    beyond the observed rectangle, solve their masked problem
+    ``(lam K^T M K + beta D^T D) f = lam K^T M y + D^T z`` (``M``: the usable pixels)
+    by conjugate gradients in the Fourier domain, preconditioned by the unmasked
+    closed form above (two FFTs per iteration, warm-started from the previous step):
+    the image border then gets the same masked data term as the exact solver.
 
     Parameters
     ----------
     domain : LatentDomain
     margin : int
-        Minimum box margin beyond each window (at least the PSF size is sensible).
+        Minimum box margin beyond each window (about one PSF size).
     """
 
     def __init__(self, domain: LatentDomain, margin: int):
@@ -162,6 +175,7 @@ class PatchFourier:
         self.stride = grid.stride
         P = self.patch = grid.patch_shape
         self.box = tuple(_fast_box(p, margin) for p in P)
+        #: box margin before the window (the one after it may be one pixel larger)
         self.margin = tuple((b - p) // 2 for b, p in zip(self.box, P, strict=True))
         # extended canvas: box (i, j) starts at canvas (i * s0, j * s1)
         self.lead = tuple(o // 2 + m for o, m in zip(grid.overlap, self.margin, strict=True))
@@ -177,20 +191,39 @@ class PatchFourier:
         kbox[:, :K, :K] = op.psfs
         kbox = np.roll(kbox, (-h, -h), axis=(1, 2))
         self.khat = self._rfft(kbox)
-        self.k2 = (self.khat.real**2 + self.khat.imag**2).astype(self.dtype)
+        # |k|^2 and |d_x|^2 + |d_y|^2, each value repeated twice to match _rv(spectrum)
+        self.k2 = np.repeat(self.khat.real**2 + self.khat.imag**2, 2, axis=-1).astype(self.dtype)
         wy = 2.0 - 2.0 * np.cos(2 * np.pi * np.arange(B0) / B0)
         wx = 2.0 - 2.0 * np.cos(2 * np.pi * np.arange(B1 // 2 + 1) / B1)
-        self.d2 = (wy[:, None] + wx[None, :]).astype(self.dtype)
+        self.d2 = np.repeat(wy[:, None] + wx[None, :], 2, axis=-1).astype(self.dtype)
         wy_, wx_ = (w.astype(self.dtype) for w in grid.windows)
         self.windows = (wy_[:, None, :, None] * wx_[None, :, None, :]).reshape(self.n, *P)
-        # data a box's circular model can use: observed pixels at least the PSF
-        # half-width from the box edge (nearer ones see latent pixels outside the box)
+        # usable data of a box: observed pixels at least the PSF half-width from its edge
         self._observed = np.zeros(self.canvas, bool)
         inner = domain.inner
         self._observed[self.lead[0] + inner[0].start:self.lead[0] + inner[0].stop,
                        self.lead[1] + inner[1].start:self.lead[1] + inner[1].stop] = True
         self._interior = np.zeros(self.box, bool)
         self._interior[h:B0 - h, h:B1 - h] = True
+        #: border tiles: boxes that reach beyond an image edge of the observed rectangle
+        #: (cuts between blocks lie at least two PSF sizes from the kept region, so the
+        #: cheap closed form is enough there)
+        beyond = np.zeros(self.canvas, bool)
+        top, bottom, left, right = domain.image_edges
+        r0, r1 = self.lead[0] + inner[0].start, self.lead[0] + inner[0].stop
+        c0, c1 = self.lead[1] + inner[1].start, self.lead[1] + inner[1].stop
+        beyond[:r0] |= top
+        beyond[r1:] |= bottom
+        beyond[:, :c0] |= left
+        beyond[:, c1:] |= right
+        self.border = self._boxes(beyond).any(axis=(2, 3)).ravel()
+        self._border_pos = np.cumsum(self.border) - 1
+        # Parseval weights of a real FFT's half spectrum along the last axis (for _rv)
+        half = np.full(B1 // 2 + 1, 2.0)
+        half[0] = 1.0
+        if B1 % 2 == 0:
+            half[-1] = 1.0
+        self._half_weights = np.repeat(half, 2).astype(self.dtype)
         per_tile = B0 * (B1 // 2 + 1) * np.dtype(np.complex128).itemsize
         self.chunk = max(1, _CHUNK_BYTES // per_tile)
         self.kty = None
@@ -212,9 +245,22 @@ class PatchFourier:
         return np.pad(arr, tuple(zip(before, after, strict=True)), mode="reflect")
 
     def _boxes(self, canvas: np.ndarray) -> np.ndarray:
-        """All boxes of a canvas, (n, B0, B1) (a strided view)."""
+        """All boxes of a canvas as a strided view, (ny, nx, B0, B1) (no copy)."""
         view = sliding_window_view(canvas, self.box)[::self.stride[0], ::self.stride[1]]
-        return view[:self.counts[0], :self.counts[1]].reshape(self.n, *self.box)
+        return view[:self.counts[0], :self.counts[1]]
+
+    def _chunks(self):
+        """Whole rows of tiles, about :data:`_CHUNK_BYTES` of spectra each:
+        yields (rows of the tile grid, the tiles' flat indices)."""
+        nx = self.counts[1]
+        step = max(1, self.chunk // nx)
+        for i in range(0, self.counts[0], step):
+            j = min(i + step, self.counts[0])
+            yield slice(i, j), slice(i * nx, j * nx)
+
+    def _take(self, view: np.ndarray, tile_rows: slice) -> np.ndarray:
+        """Boxes of whole rows of tiles, copied into (n, B0, B1)."""
+        return np.ascontiguousarray(view[tile_rows]).reshape(-1, *self.box)
 
     def _blend(self, boxes_iter) -> np.ndarray:
         """``sum_r omega_r C_r^T f_r`` from (tile indices, box solutions) chunks."""
@@ -230,23 +276,39 @@ class PatchFourier:
         l0, l1 = self.lead
         return canvas[l0:l0 + self.domain.shape[0], l1:l1 + self.domain.shape[1]]
 
+    def _dot(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Real inner products of the images behind half spectra ``a``, ``b`` (n, ...) -> (n,),
+        up to the common factor 1 / (B0 B1) (Parseval)."""
+        prod = _rv(a) * _rv(b)
+        return (prod @ self._half_weights).sum(-1, dtype=np.float64)
+
     # -- data ---------------------------------------------------------------------
     def set_observation(self, g: np.ndarray) -> None:
-        """Take the observed block ``g`` (h, w); caches ``conj(k_r) y_r`` per tile."""
+        """Take the observed block ``g`` (h, w): caches ``conj(k_r) y_r`` per tile."""
         self._y = self._to_canvas(self.domain.extend(g), "reflect")
-        boxes = self._boxes(self._y)
-        observed = self._boxes(self._observed)
+        y_view = self._boxes(self._y)
+        obs_view = self._boxes(self._observed)
         self.kty = np.empty((self.n, *self._spec_shape), self.khat.dtype)
-        for s in range(0, self.n, self.chunk):
-            sl = slice(s, s + self.chunk)
-            yhat = self._rfft(boxes[sl])
+        nb = int(self.border.sum())
+        self._kty_masked = np.empty((nb, *self._spec_shape), self.khat.dtype)
+        self._usable = np.empty((nb, *self.box), bool)
+        self._x_border = None  # previous border solutions (spectra), for warm starts
+        for tile_rows, sl in self._chunks():
+            boxes = self._take(y_view, tile_rows)
+            usable = self._take(obs_view, tile_rows) & self._interior
+            yhat = self._rfft(boxes)
             # unusable data <- the circular blur of the (mirrored) observation: a
-            # periodic, consistent start for the majorise-minimise fill
+            # periodic, consistent box for the closed form
             blurred = self._irfft(self.khat[sl] * yhat)
-            fill = np.where(observed[sl] & self._interior, boxes[sl], blurred)
-            self.kty[sl] = np.conj(self.khat[sl]) * self._rfft(fill)
+            self.kty[sl] = np.conj(self.khat[sl]) * self._rfft(np.where(usable, boxes, blurred))
+            sel = np.flatnonzero(self.border[sl])
+            if sel.size:
+                pos = self._border_pos[sel + sl.start]
+                self._usable[pos] = usable[sel]
+                self._kty_masked[pos] = np.conj(self.khat[sel + sl.start]) * self._rfft(
+                    np.where(usable[sel], boxes[sel], 0))
 
-    def solve(self, prior_rhs, lam: float, beta: float, refine: int = 0):
+    def solve(self, prior_rhs, lam: float, beta: float, border_iterations: int = 4):
         """One image step; a generator yielding once per chunk of tiles, returning ``f``.
 
         Parameters
@@ -255,64 +317,167 @@ class PatchFourier:
             ``D^T z`` with ``z = beta w`` (None: no prior pull, the Wiener filter).
         lam, beta : float
             Data weight and prior (splitting) weight.
-        refine : int
-            Extra majorise-minimise passes (fill, then re-solve) per tile.
+        border_iterations : int
+            Conjugate-gradient iterations on the border tiles' masked problems.
         """
         if self.kty is None:
             raise RuntimeError("set_observation() must be called before solve()")
-        prior_boxes = None
+        prior_view = None
         if prior_rhs is not None:
-            prior_boxes = self._boxes(self._to_canvas(prior_rhs, "zero"))
-        y_boxes = self._boxes(self._y)
-        observed = self._boxes(self._observed)
+            prior_view = self._boxes(self._to_canvas(prior_rhs, "zero"))
         lam_c = self.dtype.type(lam)
         beta_c = self.dtype.type(beta)
+        if self._x_border is None:
+            self._x_border = np.zeros_like(self._kty_masked)
+            first = True
+        else:
+            first = False
         results = []
-        for s in range(0, self.n, self.chunk):
-            idx = np.arange(s, min(s + self.chunk, self.n))
-            prior_hat = self._rfft(prior_boxes[idx]) if prior_boxes is not None else 0
-            den = lam_c * self.k2[idx] + beta_c * self.d2
-            valid = observed[idx] & self._interior
-            for mm in range(1 + refine):
-                xhat = (lam_c * self.kty[idx] + prior_hat) / den
-                # majorise-minimise: unusable data <- the tile's blurred estimate
-                blurred = self._irfft(self.khat[idx] * xhat)
-                fill = np.where(valid, y_boxes[idx], blurred)
-                self.kty[idx] = np.conj(self.khat[idx]) * self._rfft(fill)
+        for tile_rows, sl in self._chunks():
+            prior_hat = None
+            if prior_view is not None:
+                prior_hat = self._rfft(self._take(prior_view, tile_rows))
+            inv_den = lam_c * self.k2[sl]
+            inv_den += beta_c * self.d2
+            np.reciprocal(inv_den, out=inv_den)
+            xhat = self.kty[sl] * lam_c
+            if prior_hat is not None:
+                xhat += prior_hat
+            _rv(xhat)[:] *= inv_den
+            sel = np.flatnonzero(self.border[sl])
+            if sel.size:
+                pos = self._border_pos[sel + sl.start]
+                rhs = self._kty_masked[pos] * lam_c
+                if prior_hat is not None:
+                    rhs += prior_hat[sel]
+                start = xhat[sel] if first else self._x_border[pos]
+                xb = self._masked_cg(sel + sl.start, pos, start, rhs, lam_c, beta_c,
+                                     inv_den[sel], border_iterations)
+                xhat[sel] = xb
+                self._x_border[pos] = xb
             boxes = self._irfft(xhat).astype(self.dtype, copy=False)
-            results.append((idx, boxes))
+            results.append((range(sl.start, sl.stop), boxes))
             yield
         return self._blend(results)
+
+    def _masked_cg(self, rows, pos, x, rhs, lam, beta, inv_den, iterations):
+        """Batched preconditioned CG for the border tiles' masked box problems, on spectra.
+
+        ``A x = lam conj(k) F(M F^-1(k x)) + beta |d|^2 x``; preconditioner ``inv_den``
+        (the unmasked closed form). Each tile has its own step sizes.
+        """
+        khat = self.khat[rows]
+        khat_conj = np.conj(khat)
+        usable = self._usable[pos]
+        d2 = self.d2 * beta
+
+        def apply_a(v):
+            blurred = self._irfft(khat * v)
+            blurred *= usable
+            out = self._rfft(blurred)
+            out *= khat_conj
+            _rv(out)[:] *= lam
+            _rv(out)[:] += _rv(v) * d2
+            return out
+
+        def step(scalars):
+            return scalars.astype(self.dtype)[:, None, None]
+
+        x = x.copy()
+        r = rhs - apply_a(x)
+        z = r.copy()
+        _rv(z)[:] *= inv_den
+        p = z.copy()
+        rz = self._dot(r, z)
+        for _ in range(iterations):
+            ap = apply_a(p)
+            pap = self._dot(p, ap)
+            alpha = step(np.where(pap > 0, rz / np.where(pap > 0, pap, 1.0), 0.0))
+            _rv(x)[:] += alpha * _rv(p)
+            _rv(r)[:] -= alpha * _rv(ap)
+            np.multiply(_rv(r), inv_den, out=_rv(z))
+            rz_new = self._dot(r, z)
+            gamma = step(np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0))
+            _rv(p)[:] *= gamma
+            _rv(p)[:] += _rv(z)
+            rz = rz_new
+        return x
 
 
 # --------------------------------------------------------------------------------------
 # conjugate gradients
 # --------------------------------------------------------------------------------------
 
-def conjugate_gradient(apply_a, b: np.ndarray, x0: np.ndarray, iterations: int, tol: float):
-    """Conjugate gradients for ``A x = b`` (A symmetric positive definite), as a generator.
+def conjugate_gradient(apply_a, b: np.ndarray, x0: np.ndarray, iterations: int, tol: float,
+                       precondition=None):
+    """(Preconditioned) conjugate gradients for ``A x = b``, A symmetric positive definite.
 
-    Yields ``(k, relative_residual)`` after each iteration and returns ``x``. Stops when
-    ``||b - A x|| <= tol ||b||`` or after ``iterations`` steps. Inner products in float64.
+    A generator: yields ``(k, relative_residual)`` after each iteration and returns
+    ``x``. Stops when ``||b - A x|| <= tol ||b||`` or after ``iterations`` steps.
+    ``precondition(r)`` applies a symmetric positive definite approximation of
+    ``A^-1``. Inner products in float64.
     """
     x = x0.copy()
     r = b - apply_a(x)
-    p = r.copy()
-    rr = float(np.vdot(r, r))
+    z = precondition(r) if precondition is not None else r
+    p = z.copy()
+    rz = float(np.vdot(r, z))
     bnorm = math.sqrt(float(np.vdot(b, b))) or 1.0
+    res = math.sqrt(float(np.vdot(r, r))) / bnorm
     for k in range(1, iterations + 1):
-        if math.sqrt(rr) <= tol * bnorm:
+        if res <= tol:
             break
         ap = apply_a(p)
-        alpha = rr / max(float(np.vdot(p, ap)), 1e-300)
+        alpha = rz / max(float(np.vdot(p, ap)), 1e-300)
         x += x.dtype.type(alpha) * p
         r -= r.dtype.type(alpha) * ap
-        rr_new = float(np.vdot(r, r))
-        p *= p.dtype.type(rr_new / max(rr, 1e-300))
-        p += r
-        rr = rr_new
-        yield k, math.sqrt(rr) / bnorm
+        z = precondition(r) if precondition is not None else r
+        rz_new = float(np.vdot(r, z))
+        p *= p.dtype.type(rz_new / max(rz, 1e-300))
+        p += z
+        rz = rz_new
+        res = math.sqrt(float(np.vdot(r, r))) / bnorm
+        yield k, res
     return x
+
+
+class CirculantPreconditioner:
+    """``(lam <|k_r|^2> + beta |d|^2)^-1`` on the whole domain, by FFT (for CG).
+
+    ``<|k_r|^2>`` is the power spectrum averaged over the EFF tiles, from the mean
+    autocorrelation of the tile PSFs; the operator is circulant with a real positive
+    symbol, hence symmetric positive definite, and close to the inverse of the
+    normal equations of the image step wherever the PSF varies slowly.
+    """
+
+    def __init__(self, domain: LatentDomain):
+        psfs = domain.op.psfs.astype(np.float64)
+        K = psfs.shape[-1]
+        L = 2 * K - 1  # support of an autocorrelation
+        self.shape = tuple(sfft.next_fast_len(n + K, real=True) for n in domain.shape)
+        self.domain_shape = domain.shape
+        self.dtype = domain.dtype
+        spec = sfft.rfft2(psfs, s=(L, L), axes=(-2, -1))
+        acf = sfft.irfft2((spec.real**2 + spec.imag**2).mean(0), s=(L, L))  # lag 0 at [0, 0]
+        lags = np.zeros(self.shape)
+        rows = np.r_[0:K, self.shape[0] - K + 1:self.shape[0]]
+        cols = np.r_[0:K, self.shape[1] - K + 1:self.shape[1]]
+        lags[np.ix_(rows, cols)] = acf
+        self.k2 = np.maximum(sfft.rfft2(lags).real, 0.0)  # even and real: a real spectrum
+        wy = 2.0 - 2.0 * np.cos(2 * np.pi * np.arange(self.shape[0]) / self.shape[0])
+        wx = 2.0 - 2.0 * np.cos(2 * np.pi * np.arange(self.shape[1] // 2 + 1) / self.shape[1])
+        self.d2 = wy[:, None] + wx[None, :]
+
+    def operator(self, lam: float, beta: float):
+        """The preconditioner for the image step with weights ``lam`` and ``beta``."""
+        inv = (1.0 / (lam * self.k2 + beta * self.d2)).astype(self.dtype)
+        H, W = self.domain_shape
+
+        def apply(r):
+            rh = sfft.rfft2(r, s=self.shape, workers=FFT_WORKERS)
+            return sfft.irfft2(rh * inv, s=self.shape, workers=FFT_WORKERS)[:H, :W].astype(
+                self.dtype, copy=False)
+        return apply
 
 
 # --------------------------------------------------------------------------------------
@@ -322,7 +487,7 @@ def conjugate_gradient(apply_a, b: np.ndarray, x0: np.ndarray, iterations: int, 
 def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alpha: float,
                          betas, inner_iterations: int, solver: str,
                          fourier: PatchFourier | None, cg_iterations: int, cg_tol: float,
-                         refine: int, state: dict):
+                         border_iterations: int, state: dict, precondition: bool = True):
     """Half-quadratic splitting for the hyper-Laplacian prior on one block (KF Alg. 1).
 
     ``min_f lam/2 ||M T f - g||^2 + sum |D_x f|^alpha + |D_y f|^alpha``; for each
@@ -335,23 +500,28 @@ def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alp
     state["x"] = x
     if solver == "fourier":
         fourier.set_observation(g)
-        b_data = None
+        yield "substep", {}
     else:
         b_data = domain.data_adjoint(g) * domain.dtype.type(lam)
+        pre = CirculantPreconditioner(domain).operator if precondition else None
+        yield "substep", {}
     for beta in betas:
         thr = shrink_threshold(beta, alpha)
         for it in range(inner_iterations):
             gx, gy = grad(x)
             wx = shrink_hyperlaplacian(gx, beta, alpha, thr)
+            del gx
             wy = shrink_hyperlaplacian(gy, beta, alpha, thr)
+            del gy
             prior_rhs = grad_adjoint(wx, wy)
             prior_rhs *= domain.dtype.type(beta)
-            del gx, gy, wx, wy
+            del wx, wy
+            yield "substep", {}
             if solver == "fourier":
-                x = yield from _substeps(fourier.solve(prior_rhs, lam, beta, refine))
+                x = yield from _substeps(fourier.solve(prior_rhs, lam, beta, border_iterations))
             else:
                 x = yield from _cg_image_step(domain, b_data + prior_rhs, x, lam, beta,
-                                              cg_iterations, cg_tol)
+                                              cg_iterations, cg_tol, pre)
             state["x"] = x
             yield "iteration", {"beta": beta, "inner": it + 1}
     return x
@@ -367,7 +537,7 @@ def _substeps(gen):
         yield "substep", {}
 
 
-def _cg_image_step(domain, b, x0, lam, beta, iterations, tol):
+def _cg_image_step(domain, b, x0, lam, beta, iterations, tol, precondition):
     lam_c = domain.dtype.type(lam)
     beta_c = domain.dtype.type(beta)
 
@@ -378,7 +548,8 @@ def _cg_image_step(domain, b, x0, lam, beta, iterations, tol):
         out += beta_c * grad_adjoint(gx, gy)
         return out
 
-    gen = conjugate_gradient(apply_a, b, x0, iterations, tol)
+    gen = conjugate_gradient(apply_a, b, x0, iterations, tol,
+                             precondition(lam, beta) if precondition else None)
     while True:
         try:
             k, res = next(gen)
@@ -399,6 +570,7 @@ def richardson_lucy_steps(domain: LatentDomain, g: np.ndarray, *, iterations: in
     x = np.maximum(domain.extend(g), eps)
     state["x"] = x
     norm = domain.data_adjoint(np.ones(domain.observed_shape, domain.dtype))
+    yield "substep", {}
     seen = norm > 1e-3
     inv_norm = np.where(seen, 1.0 / np.where(seen, norm, 1.0), 0.0).astype(domain.dtype)
     for it in range(iterations):
@@ -412,7 +584,7 @@ def richardson_lucy_steps(domain: LatentDomain, g: np.ndarray, *, iterations: in
 
 
 def wiener(domain: LatentDomain, g: np.ndarray, *, nsr: float, fourier: PatchFourier,
-           refine: int, state: dict):
+           border_iterations: int, state: dict):
     """Patch-wise Wiener filter ``conj(k) y / (|k|^2 + nsr |d|^2)`` per tile, blended.
 
     The image spectrum is modelled as ``|omega|^-2`` (a gradient prior), so ``nsr``
@@ -421,7 +593,8 @@ def wiener(domain: LatentDomain, g: np.ndarray, *, nsr: float, fourier: PatchFou
     """
     state["x"] = domain.extend(g)
     fourier.set_observation(g)
-    x = yield from _substeps(fourier.solve(None, 1.0, nsr, refine))
+    yield "substep", {}
+    x = yield from _substeps(fourier.solve(None, 1.0, nsr, border_iterations))
     state["x"] = x
     yield "iteration", {"iteration": 1}
     return x
