@@ -63,8 +63,9 @@ def test_the_three_widgets_dock_run_and_leave_a_screenshot(make_napari_viewer_pr
     qtbot.waitUntil(lambda: shapes.metadata["edgecme_profile_origin"][-1:] == ["hand"])
     assert len(shapes.metadata["edgecme_profiles"]) == len(shapes.data) == len(found)
 
-    # Camera motion (Xu, the baseline), with the live preview
-    motion.method_combo.value = "xu"
+    # Camera motion (Xu+Ep, the default) with the profiles of the layer, live preview
+    assert motion.method_combo.value == "xu+ep"
+    assert motion.profiles_combo.value == shapes
     motion.model_combo.value = "inplane"
     motion.max_blur.auto.setChecked(False)
     motion.max_blur.spin.setValue(7)
@@ -72,6 +73,7 @@ def test_the_three_widgets_dock_run_and_leave_a_screenshot(make_napari_viewer_pr
     motion.run_button.click()
     wait_for_run(motion)
     assert motion.runner.outcome == "done"
+    assert motion.last_estimate.info.n_profiles == len(shapes.data)
     field = viewer.layers["shaken PSF field"]
     estimated = CameraMotion.from_dict(field.metadata["edgecme_motion"])
     assert estimated.image_shape == (112, 112)
