@@ -224,15 +224,20 @@ class EdgeProfilesWidget(QWidget):
         self.runner.start(iter_detect(data, max_blur),
                           on_result=lambda profiles: self._show_detected(image, profiles))
 
+    def cancel(self) -> None:
+        """Stop a running detection (nothing changes)."""
+        self.runner.cancel()
+
     def pick_by_hand(self) -> None:
         """Make the chosen image's profile layer active, in line-drawing mode."""
         image = self.image_combo.value
         if image is None:
             show_error("Edge profiles: choose an image layer first")
             return
+        shape = image_shape(image)
         rec = self._record_for_image(image) or self._create_layers(
-            image, EdgeProfiles.empty("no profiles picked yet",
-                                      max_blur=self.max_blur.value_for(image_shape(image))),
+            image, EdgeProfiles.empty("no profiles picked yet", image_shape=shape,
+                                      max_blur=self.max_blur.value_for(shape)),
             [])
         self._set_current(rec)
         self._viewer.layers.selection.active = rec.shapes
