@@ -97,19 +97,22 @@ def test_a_run_adds_an_aligned_psf_field_and_latent_carrying_the_motion(setup, w
     assert f"{motion.n_poses} poses" in s.widget.status.text()
 
 
-def test_the_latent_preview_updates_while_xu_refines(qtbot, setup, wait_for_run):
+def test_the_latent_preview_updates_while_xu_refines(setup, wait_for_run):
     s = setup
     s.widget.n_iter.setValue(3)
-    inserted, updates = [], []
-    s.viewer.layers.events.inserted.connect(lambda event: inserted.append(event.value))
+    inserted, names, updates = [], [], []
 
+    def on_inserted(event):
+        inserted.append(event.value)
+        names.append(event.value.name)
+        event.value.events.data.connect(lambda _event: updates.append(1))
+
+    s.viewer.layers.events.inserted.connect(on_inserted)
     s.widget.run_button.click()
-    qtbot.waitUntil(lambda: len(inserted) > 0)
-    preview = inserted[0]
-    assert preview.name == "shaken latent (preview)"
-    preview.events.data.connect(lambda _event: updates.append(1))
     wait_for_run(s.widget)
-    assert len(updates) >= 2  # refined twice more, then replaced by the final latent
+    preview = inserted[0]
+    assert names[0] == "shaken latent (preview)"
+    assert len(updates) >= 2  # refined by the next iterations, then the final latent
     assert preview.name == "shaken latent"  # the preview became the result
     assert preview is s.viewer.layers["shaken latent"]
 
