@@ -12,6 +12,7 @@ behind and never clobbers a file half-way.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -44,14 +45,18 @@ def read_image(path) -> np.ndarray:
         raise ValueError(f"expected an image file, got a directory: {path}")
     suffix = path.suffix.lower()
     try:
-        if suffix in (".tif", ".tiff"):
-            import tifffile
+        with warnings.catch_warnings():
+            # imageio probes its legacy plugins (DICOM, ...) on unknown data and warns
+            # about their deprecation: noise for a user who gave us a wrong file
+            warnings.simplefilter("ignore", DeprecationWarning)
+            if suffix in (".tif", ".tiff"):
+                import tifffile
 
-            arr = tifffile.imread(path)
-        else:
-            import imageio.v3 as iio
+                arr = tifffile.imread(path)
+            else:
+                import imageio.v3 as iio
 
-            arr = iio.imread(path)
+                arr = iio.imread(path)
     except Exception as err:  # any decoder failure is a bad file for the user
         raise ValueError(f"cannot read image {path}: {_first_line(err)}") from None
     arr = np.asarray(arr)
