@@ -143,7 +143,8 @@ def test_bench_smallest_configuration_writes_markdown_and_json(tmp_path, capsys)
     deconv = tasks["deconvolution hyperlaplacian"]
     assert deconv["ok"] and deconv["seconds"] > 0 and deconv["peak_rss_mib"] > 50
     assert "target" in deconv
-    assert "| task | time (s) | peak RSS (MiB) |" in (out / "speed-quick.md").read_text()
+    assert "| task | time (s) | CPU (s) | peak RSS (MiB) |" in (out / "speed-quick.md").read_text()
+    assert deconv["cpu_s"] > 0
 
 
 def test_bench_worker_reports_a_failure_as_data(tmp_path):

@@ -289,18 +289,19 @@ def _job_estimate(job: dict) -> dict:
     from .core.estimate import estimate_motion
 
     image = np.load(job["image"])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     est = estimate_motion(image, job["method"], job["model"], job["max_blur"], rng=0,
                           n_iter=job.get("n_iter"))
-    out = {"estimate_s": time.perf_counter() - t0, "n_profiles": est.info.n_profiles,
-           "poses": est.motion.n_poses, "message": est.info.message,
-           "converged": est.info.converged}
+    out = {"estimate_s": time.perf_counter() - t0, "estimate_cpu_s": time.process_time() - c0,
+           "n_profiles": est.info.n_profiles, "poses": est.motion.n_poses,
+           "message": est.info.message, "converged": est.info.converged}
     if job.get("motion"):
         est.motion.save(job["motion"])
     if job.get("restored"):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         restored = deconvolve(image, est.motion)
         out["deconvolve_s"] = time.perf_counter() - t0
+        out["deconvolve_cpu_s"] = time.process_time() - c0
         np.save(job["restored"], restored)
     return out
 
@@ -311,9 +312,9 @@ def _job_deconvolve(job: dict) -> dict:
 
     image = np.load(job["image"])
     motion = CameraMotion.load(job["motion"])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     restored = deconvolve(image, motion, job.get("method", "hyperlaplacian"))
-    out = {"deconvolve_s": time.perf_counter() - t0}
+    out = {"deconvolve_s": time.perf_counter() - t0, "deconvolve_cpu_s": time.process_time() - c0}
     if job.get("restored"):
         np.save(job["restored"], restored)
     return out
@@ -430,7 +431,8 @@ def run_quality(config: BenchConfig, workdir: Path, log=None) -> dict:
             job.update(image=f"{stem}-blurred.npy", restored=f"{stem}-{key}.npy")
             res = run_job(job, config.timeout)
             done += 1
-            entry = {k: res.get(k) for k in ("ok", "error", "estimate_s", "deconvolve_s",
+            entry = {k: res.get(k) for k in ("ok", "error", "estimate_s", "estimate_cpu_s",
+                                             "deconvolve_s", "deconvolve_cpu_s",
                                              "peak_rss_mib", "n_profiles", "poses",
                                              "message", "warnings")}
             if res.get("ok"):
@@ -590,17 +592,21 @@ def quality_markdown(result: dict) -> str:
             if run.get("ok"):
                 notes = "; ".join(run.get("warnings") or [])
                 detail.append([c["name"], names[key], _f(run.get("estimate_s"), ".1f"),
+                               _f(run.get("estimate_cpu_s"), ".1f"),
                                _f(run.get("deconvolve_s"), ".1f"),
                                _f(run.get("peak_rss_mib"), ".0f"),
                                _f(run.get("n_profiles"), "d", ""), _f(run.get("poses"), "d", ""),
                                notes])
             else:
-                detail.append([c["name"], names[key], "", "", "", "", "",
+                detail.append([c["name"], names[key], "", "", "", "", "", "",
                                f"failed: {run.get('error', 'not run')}"])
     lines += ["## Time and peak memory per run", "",
-              markdown_table(["case", "method", "estimate (s)", "deconvolve (s)",
-                              "peak RSS (MiB)", "edge profiles", "poses", "notes"], detail,
-                             "llrrrrrl"), "",
+              markdown_table(["case", "method", "estimate (s)", "estimate CPU (s)",
+                              "deconvolve (s)", "peak RSS (MiB)", "edge profiles", "poses",
+                              "notes"], detail, "llrrrrrrl"), "",
+              "Times are wall-clock seconds; CPU is the process's user + system time over "
+              "all its threads (wall-clock much above CPU means the run waited for a shared "
+              "CPU).", "",
               _memory_note(result.get("baseline_rss_mib")), ""]
     return "\n".join(lines)
 
@@ -659,7 +665,7 @@ def _repeat(job: dict, n: int, timeout: float) -> dict:
     if not ok:
         return {"ok": False, "error": runs[0].get("error"), "runs": n}
     out = {"ok": True, "runs": len(ok), "failed_runs": n - len(ok)}
-    for key in ("estimate_s", "deconvolve_s"):
+    for key in ("estimate_s", "deconvolve_s", "estimate_cpu_s", "deconvolve_cpu_s"):
         if key in ok[0]:
             out[key] = _median([r.get(key) for r in ok])
             out[key + "_all"] = [r.get(key) for r in ok]
@@ -729,7 +735,8 @@ def _speed_row(task, res, key, target, runs) -> dict:
     if not res.get("ok"):
         row["error"] = res.get("error")
         return row
-    row.update(seconds=res[key], all=res.get(key + "_all"), peak_rss_mib=res.get("peak_rss_mib"),
+    row.update(seconds=res[key], all=res.get(key + "_all"), cpu_s=res.get(key[:-2] + "_cpu_s"),
+               peak_rss_mib=res.get("peak_rss_mib"),
                detail=f"median of {res['runs']}" if res["runs"] > 1 else "1 run")
     if res.get("message"):
         row["detail"] += f"; {res['message']}"
@@ -759,16 +766,19 @@ def speed_markdown(result: dict) -> str:
             continue
         target = f"{r['target']}: {_met(r['met'])}" if "target" in r else ""
         table.append([r["task"], f"{r['seconds']:.3f}" if r["seconds"] < 1 else
-                      f"{r['seconds']:.1f}", _f(r.get("peak_rss_mib"), ".0f", ""),
-                      target, r.get("detail", "")])
+                      f"{r['seconds']:.1f}", _f(r.get("cpu_s"), ".1f", ""),
+                      _f(r.get("peak_rss_mib"), ".0f", ""), target, r.get("detail", "")])
     lines = [f"# Speed benchmark{' (quick)' if result['quick'] else ''}", "",
              _machine_line(result["machine"]) + f"; {result['seconds'] / 60:.1f} min.", "",
-             markdown_table(["task", "time (s)", "peak RSS (MiB)", "target", "notes"], table,
-                            "lrrll"), "",
+             markdown_table(["task", "time (s)", "CPU (s)", "peak RSS (MiB)", "target",
+                             "notes"], table, "lrrrll"), "",
              "Inputs are blurred with the EFF operator, 1 % noise, 8-bit. Operator times are "
              "medians of repeated applications in one process; estimation and deconvolution "
              "times are wall-clock seconds of the call in a fresh process (median where "
-             "repeated). " + _memory_note(result.get("baseline_rss_mib")), ""]
+             "repeated), and CPU is the process's user + system time over all its threads "
+             "(on an idle machine the wall-clock time is at most about the CPU time; much "
+             "more means the run waited for a shared CPU). "
+             + _memory_note(result.get("baseline_rss_mib")), ""]
     return "\n".join(lines)
 
 
