@@ -586,9 +586,11 @@ class _Parser(argparse.ArgumentParser):
         raise _UsageError(f"{message} (see '{self.prog} --help')")
 
 
-class _Formatter(argparse.RawDescriptionHelpFormatter):
+class _Formatter(argparse.HelpFormatter):
     def __init__(self, prog):
         super().__init__(prog, max_help_position=30)
+        # room for the subcommand names, which argparse indents beyond its own measure
+        self._action_max_length = 16
 
 
 def _add_common(parser) -> None:
@@ -655,9 +657,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG, formatter_class=_Formatter,
         description="Camera motion from edge profiles in one motion-blurred photo "
                     "(Vasu & Rajagopalan, CVPR 2017): estimate it, deblur with it.",
-        epilog="Run 'edgecme demo' to see the whole pipeline on a bundled photo.\n"
-               "Exit status: 0 success, 2 bad input or usage (nothing written), 1 internal "
-               "error,\n130 interrupted. The progress bar shows only when stderr is a "
+        epilog="Run 'edgecme demo' to see the whole pipeline on a bundled photo. Exit "
+               "status: 0 success, 2 bad input or usage (nothing written), 1 internal "
+               "error, 130 interrupted. The progress bar shows only when stderr is a "
                "terminal.")
     parser.add_argument("--version", action="version",
                         version=f"{PROG} {__version__} (napari-edgecme)")
