@@ -12,12 +12,17 @@ import numbers
 import numpy as np
 
 __all__ = [
+    "FLOAT_RANGE",
     "as_float_image",
     "as_rng",
     "check_choice",
     "check_positive",
     "float_dtype",
 ]
+
+
+#: Floating-point images outside this range are refused as not scaled to [0, 1].
+FLOAT_RANGE = (-0.5, 1.5)
 
 
 def float_dtype(dtype) -> np.dtype:
@@ -41,7 +46,8 @@ def as_float_image(image, name: str = "image", *, allow_rgb: bool = False,
     image : array_like of shape (M, N) or (M, N, 3)
         Gray or (when ``allow_rgb``) RGB image. Integer images are scaled by the
         maximum of their dtype (uint8 by 255, uint16 by 65535, ...); bool maps to
-        {0, 1}; floating images are taken as they are (expected in [0, 1]).
+        {0, 1}; floating images are taken as they are and must lie in [0, 1] (values
+        within :data:`FLOAT_RANGE` are tolerated: noise and ringing overshoot).
     name : str
         Parameter name used in error messages.
     allow_rgb : bool
@@ -87,6 +93,12 @@ def as_float_image(image, name: str = "image", *, allow_rgb: bool = False,
         if not np.all(np.isfinite(out)):
             bad = int(np.count_nonzero(~np.isfinite(out)))
             raise ValueError(f"{name} contains {bad} non-finite values (NaN or inf)")
+        lo, hi = float(out.min()), float(out.max())
+        if lo < FLOAT_RANGE[0] or hi > FLOAT_RANGE[1]:
+            raise ValueError(
+                f"{name} must be scaled to [0, 1] for floating-point input; got values in "
+                f"[{lo:g}, {hi:g}] (divide 8-bit data by 255, 16-bit data by 65535)"
+            )
     return out
 
 

@@ -99,7 +99,11 @@ class ScaleRecord:
 
 @dataclass
 class EstimateInfo:
-    """Diagnostics of an estimation run (like ``scipy.optimize.OptimizeResult``)."""
+    """Diagnostics of an estimation run (like ``scipy.optimize.OptimizeResult``).
+
+    ``method`` is the method that ran: ``"xu"`` after Xu+Ep fell back for lack of
+    edge profiles (``message`` says so).
+    """
 
     method: str
     model: str
@@ -373,7 +377,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             warnings.warn(f"only {len(work_profiles)} usable edge profiles (need {need}){why}; "
                           "falling back to method 'xu'", UserWarning, stacklevel=2)
             method, lambda_ip, work_profiles = "xu", 0.0, None
-            info.message = "fell back to 'xu': too few edge profiles; "
+            info.method = "xu"
+            info.message = "fell back to 'xu' (too few edge profiles); "
             total -= 1
         else:
             step += 1

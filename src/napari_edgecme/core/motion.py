@@ -130,7 +130,9 @@ class CameraMotion:
         if not total > 0:
             raise ValueError("weights must not all be zero")
         self.poses = poses
-        self.weights = w / total
+        # normalise, but leave weights that already sum to one bit-exact (motion files
+        # round-trip exactly)
+        self.weights = w / total if abs(total - 1.0) > 1e-12 else w.copy()
         self.poses.setflags(write=False)
         self.weights.setflags(write=False)
 
