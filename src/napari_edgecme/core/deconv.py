@@ -131,7 +131,7 @@ MAX_STRIDE = 256
 #: Patch-wise Fourier solver: box margin beyond each EFF window, in PSF sizes, and
 #: conjugate-gradient iterations on the border tiles' masked problems per image step.
 FOURIER_MARGIN = 1.0
-FOURIER_BORDER_ITERATIONS = {"hyperlaplacian": 4, "wiener": 8}
+FOURIER_BORDER_ITERATIONS = {"hyperlaplacian": 8, "wiener": 12}
 
 
 def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
