@@ -498,18 +498,13 @@ def to_luminance(image, name: str = "image") -> np.ndarray:
     """Validate an image and return its luminance, (M, N) float32 (float64 kept).
 
     RGB input is weighted as :func:`skimage.color.rgb2gray` (Rec. 709). Floating-point
-    images must be scaled to [0, 1]; values clearly beyond (max > 1.5) are refused
-    because every threshold of the engine is on that scale.
+    images must be scaled to [0, 1] (the engine's input rule,
+    :func:`~napari_edgecme.core._validation.as_float_image`): every threshold of the
+    edge tests is on that scale.
     """
     img = as_float_image(image, name, allow_rgb=True, min_size=2)
     if img.ndim == 3:
         img = (img @ _LUMA.astype(img.dtype)).astype(img.dtype)
-    if np.issubdtype(np.asarray(image).dtype, np.floating):
-        top = float(img.max()) if img.size else 0.0
-        if top > 1.5 or float(img.min()) < -0.5:
-            raise ValueError(f"{name} must be scaled to [0, 1] for floating-point input; got "
-                             f"values in [{float(img.min()):g}, {top:g}] (divide by the "
-                             f"maximum, e.g. 255, first)")
     return img
 
 
@@ -793,8 +788,8 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
         max_profiles = check_positive(max_profiles, "max_profiles", integer=True)
     offsets = np.arange(-geom.half, geom.half + 1, dtype=float)
     shape = img.shape
-    stats = {"candidates": 0, "examined": 0, "valid": 0, "outliers": 0, "duplicates": 0,
-             "kept": 0, "rejected": {}, "noise": tests.noise, "sigma": sigma,
+    stats = {"candidates": 0, "examined": 0, "valid": 0, "outliers": 0, "soft": 0,
+             "duplicates": 0, "kept": 0, "rejected": {}, "noise": tests.noise, "sigma": sigma,
              "spacing": spacing}
 
     def empty(reason):
@@ -834,12 +829,14 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
         keep, agreement = _neighbour_outliers(prof["centroid"], prof["angle"], prof["deriv"],
                                               shape, max_blur)
         stats["outliers"] = int((~keep).sum())
-        stats["rejected"][REASONS[_OUTLIER]] = stats["outliers"]
+        if stats["outliers"]:
+            stats["rejected"][REASONS[_OUTLIER]] = stats["outliers"]
     if reject_soft and keep.sum() >= 6:
         soft = ~_blur_consistency(prof["centroid"][keep], prof["angle"][keep],
                                   prof["deriv"][keep], offsets, shape)
         stats["soft"] = int(soft.sum())
-        stats["rejected"][REASONS[_SOFT]] = stats["soft"]
+        if stats["soft"]:
+            stats["rejected"][REASONS[_SOFT]] = stats["soft"]
         keep[np.flatnonzero(keep)[soft]] = False
     quality = _quality(res, agreement, geom, tests)
     idx = np.flatnonzero(keep)
@@ -991,6 +988,10 @@ def _analyse(S, geom: _Geometry, tests: _Tests, final: bool, max_tilt: float) ->
     c2_0 = np.median(m[:, :q], 1)
     c1_0 = np.median(m[:, -q:], 1)
     C0 = c1_0 - c2_0
+    # little difference between the ends: a bump (a line, a bar) if the middle strays far,
+    # otherwise no edge at all
+    bump = np.ptp(m, axis=1) >= max(tests.min_contrast, tests.min_snr * tests.noise)
+    fail((C0 < 0.5 * tests.min_contrast) & bump, _NOT_MONOTONE)
     fail(C0 < 0.5 * tests.min_contrast, _LOW_CONTRAST)
     a0 = (m - c2_0[:, None]) / np.maximum(C0, 1e-6)[:, None]
     tau = np.clip(3.0 * noise_mean / np.maximum(C0, 1e-6), 0.02, 0.25)[:, None]
