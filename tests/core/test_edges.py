@@ -6,6 +6,7 @@ the estimators' operator. The truth for a profile is the true PSF at its centroi
 (``motion.psf``) projected on its normal (Eq. 11), both centroid-aligned.
 """
 
+import functools
 import json
 import warnings
 
@@ -121,18 +122,34 @@ def mapped_edge_distance(motion, points):
     return boundary_distance(xy[:, ::-1])
 
 
+@functools.cache
+def _scene():
+    return render_scene()
+
+
+@functools.cache
+def _shaken(model, extent, seed):
+    case = make_case(_scene(), model, extent=extent, noise=0.01, rng=seed)
+    prof = extract_edge_profiles(case.blurred, max_blur=extent + 2, rng=0)
+    return case, prof
+
+
 @pytest.fixture(scope="module")
 def scene():
-    return render_scene()
+    return _scene()
 
 
 @pytest.fixture(scope="module", params=[("rotation", 11, 3), ("inplane", 9, 2)],
                 ids=["rotation-11px", "inplane-9px"])
-def shaken(request, scene):
-    model, extent, seed = request.param
-    case = make_case(scene, model, extent=extent, noise=0.01, rng=seed)
-    prof = extract_edge_profiles(case.blurred, max_blur=extent + 2, rng=0)
-    return case, prof
+def shaken(request):
+    """The reference scene under two spatially varying shakes, and its profiles."""
+    return _shaken(*request.param)
+
+
+@pytest.fixture(scope="module")
+def one_case():
+    """One of the ``shaken`` cases, for claims that need not hold for both."""
+    return _shaken("rotation", 11, 3)
 
 
 # ---------------------------------------------------------------------------------------
@@ -378,8 +395,8 @@ def test_invalid_arguments_raise_one_line_naming_the_parameter(kwargs, match):
     assert "\n" not in str(info.value)
 
 
-def test_normal_input_raises_no_warnings(shaken):
-    case, _ = shaken
+def test_normal_input_raises_no_warnings(one_case):
+    case, _ = one_case
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         extract_edge_profiles(case.blurred, 13, rng=0)
@@ -418,8 +435,8 @@ def test_a_line_across_a_clean_edge_gives_its_profile(shaken):
     ((70, 60), (70, 63), "line too short"),
     ((-40, 60), (70, 60), "outside"),
 ])
-def test_a_bad_pick_is_refused_with_the_reason(shaken, start, end, reason):
-    case, _ = shaken
+def test_a_bad_pick_is_refused_with_the_reason(one_case, start, end, reason):
+    case, _ = one_case
     one = profile_along_line(case.blurred, start, end)
     assert len(one) == 0
     assert reason in one.reason
@@ -443,8 +460,8 @@ def test_a_pick_across_texture_is_refused(rng):
                                             "edge not straight (parallel lines disagree)")
 
 
-def test_profile_along_line_validates_its_points(shaken):
-    case, _ = shaken
+def test_profile_along_line_validates_its_points(one_case):
+    case, _ = one_case
     with pytest.raises(ValueError, match="start"):
         profile_along_line(case.blurred, (1, 2, 3), (5, 5))
     with pytest.raises(ValueError, match="end"):
@@ -455,8 +472,8 @@ def test_profile_along_line_validates_its_points(shaken):
 # the container
 # ---------------------------------------------------------------------------------------
 
-def test_subset_select_and_concatenate(shaken):
-    _, prof = shaken
+def test_subset_select_and_concatenate(one_case):
+    _, prof = one_case
     sub = prof.subset([3, 0, 1])
     assert len(sub) == 3
     assert np.array_equal(sub.centroids[1], prof.centroids[0])
@@ -477,8 +494,8 @@ def test_subset_select_and_concatenate(shaken):
 
 
 @pytest.mark.parametrize("factor", [0.5, 1 / np.sqrt(2), 2.0])
-def test_rescaled_profiles_fit_a_pyramid_level(shaken, factor):
-    _, prof = shaken
+def test_rescaled_profiles_fit_a_pyramid_level(one_case, factor):
+    _, prof = one_case
     level = prof.rescaled(factor)
     assert len(level) == len(prof)
     np.testing.assert_allclose(level.centroids, (prof.centroids + 0.5) * factor - 0.5)
@@ -493,8 +510,8 @@ def test_rescaled_profiles_fit_a_pyramid_level(shaken, factor):
     np.testing.assert_allclose(back.centroids, prof.centroids, atol=1e-9)
 
 
-def test_json_round_trip_is_exact(shaken, tmp_path):
-    _, prof = shaken
+def test_json_round_trip_is_exact(one_case, tmp_path):
+    _, prof = one_case
     path = tmp_path / "profiles.json"
     prof.save(path)
     data = json.loads(path.read_text())
@@ -526,8 +543,8 @@ def test_malformed_files_raise_one_line(tmp_path, text, match):
     assert "\n" not in str(info.value) and "bad.json" in str(info.value)
 
 
-def test_inconsistent_arrays_in_a_file_are_named(shaken, tmp_path):
-    _, prof = shaken
+def test_inconsistent_arrays_in_a_file_are_named(one_case, tmp_path):
+    _, prof = one_case
     data = prof.to_dict()
     data["derivatives"] = data["derivatives"][:-1]
     path = tmp_path / "short.json"
@@ -543,9 +560,9 @@ def test_inconsistent_arrays_in_a_file_are_named(shaken, tmp_path):
         EdgeProfiles.load(tmp_path / "missing.json")
 
 
-def test_figure_renders_and_saves(shaken, tmp_path):
+def test_figure_renders_and_saves(one_case, tmp_path):
     pytest.importorskip("matplotlib")
-    _, prof = shaken
+    _, prof = one_case
     fig = prof.figure(indices=[0, 1, 2], path=tmp_path / "profiles.png")
     assert len(fig.axes) == 2
     assert (tmp_path / "profiles.png").stat().st_size > 1000

@@ -36,6 +36,12 @@ __all__ = ["MASKS", "edge_profile_image", "prediction_image", "profile_masks"]
 #: Mask kinds of :func:`edge_profile_image`.
 MASKS = ("single", "multi")
 
+#: Standard deviation (px) of the Gaussian cross-section of the prediction lines: the
+#: smoothing of the central differences that make ``I_ep`` (a box of two pixels, whose
+#: standard deviation is 1/sqrt(3) px), and wide enough that a line sampled on the
+#: pixel grid keeps its mass per unit length at every angle (within 1%).
+_LINE_SIGMA = 0.55
+
 #: Default total width (radians) of the angular window of the multi-direction mask.
 DEFAULT_ANGULAR_WIDTH = math.radians(20.0)
 
@@ -60,13 +66,14 @@ def _scaled_centroids(profiles: EdgeProfiles, scale: float) -> np.ndarray:
     return (profiles.centroids + 0.5) * scale - 0.5
 
 
-def _default_line_length(profiles: EdgeProfiles, scale: float, reach: float) -> float:
+def _default_line_length(profiles: EdgeProfiles, scale: float) -> np.ndarray:
     blur = profiles.max_blur
     if blur is None:  # fall back on the profile grid: R = max_blur + margins
         blur = 0.75 * float(np.max(np.abs(profiles.offsets)))
     # the line must cover the PSF's tangential reach (about blur / 2 each side) plus the
-    # lateral extent of the mask where it is compared
-    return max(3.0, blur * scale + 2.0 * reach + 1.0)
+    # lateral extent of the default multi-direction mask where it is compared
+    reach = profiles.window * scale * math.tan(DEFAULT_ANGULAR_WIDTH / 2)
+    return np.maximum(3.0, blur * scale + 2.0 * reach + 1.0)
 
 
 def _stencil(centres, half: int, shape):
@@ -95,11 +102,12 @@ def prediction_image(profiles: EdgeProfiles, shape, *, scale: float = 1.0,
     scale : float
         Size of this level over the profiles' image (1 at full resolution).
     line_length : float, optional
-        Length (px at this level) of each segment. Default
-        ``max_blur * scale + 2 * reach + 1`` with ``reach = radius * tan(w / 2)`` the
-        lateral half-width of the default multi-direction mask
-        (see :func:`edge_profile_image`): long enough that blurring the segment
-        integrates the whole PSF along the tangent everywhere inside the mask.
+        Length (px at this level) of every segment. Default, per profile,
+        ``max_blur * scale + 2 * reach + 1`` with ``reach = window * scale * tan(w / 2)``
+        the lateral half-width of the default multi-direction mask at the end of the
+        profile's validated window (see :func:`edge_profile_image`): long enough that
+        blurring the segment integrates the whole PSF along the tangent everywhere
+        inside the mask.
     dtype : dtype
         float32 (default) or float64.
 
@@ -127,22 +135,22 @@ def prediction_image(profiles: EdgeProfiles, shape, *, scale: float = 1.0,
     if len(profiles) == 0:
         return out.reshape(H, W)
     if line_length is None:
-        radius = _default_radius(profiles, scale)
-        line_length = _default_line_length(
-            profiles, scale, radius * math.tan(DEFAULT_ANGULAR_WIDTH / 2))
-    line_length = check_positive(line_length, "line_length")
+        lengths = _default_line_length(profiles, scale)
+    else:
+        lengths = np.full(len(profiles), check_positive(line_length, "line_length"))
     centres = _scaled_centroids(profiles, scale)
-    half_len = line_length / 2.0
-    half = math.ceil(half_len + 1.5)
+    half_len = lengths[:, None] / 2.0
+    half = math.ceil(float(half_len.max()) + 1.5)
     flat, drow, dcol, inside = _stencil(centres, half, (H, W))
     phi = profiles.normal_angle[:, None]
     along = drow * np.cos(phi) - dcol * np.sin(phi)  # along the tangent
     # distance along the normal from the (curved) edge through the centroid
     across = (drow * np.sin(phi) + dcol * np.cos(phi)
               - 0.5 * (profiles.curvature[:, None] / scale) * along**2)
-    tent = np.clip(1.0 - np.abs(across), 0.0, None)
+    profile = np.exp(-0.5 * (across / _LINE_SIGMA) ** 2) / (_LINE_SIGMA * math.sqrt(2 * math.pi))
+    profile[np.abs(across) > 3.5 * _LINE_SIGMA] = 0.0
     ends = np.clip(half_len + 0.5 - np.abs(along), 0.0, 1.0)
-    val = profiles.contrast[:, None] * tent * ends
+    val = profiles.contrast[:, None] * profile * ends
     keep = inside & (val > 0)
     np.maximum.at(out, flat[keep], val[keep].astype(dtype))
     return out.reshape(H, W)
