@@ -150,16 +150,19 @@ def _luminance(img: np.ndarray) -> np.ndarray:
     return img @ coeffs
 
 
-def _normalise_contrast(img: np.ndarray) -> np.ndarray:
-    """Stretch the 0.5 and 99.5 percentiles to 0 and 1.
+def _contrast_gain(img: np.ndarray) -> tuple[float, float]:
+    """Offset and gain that stretch the 0.5 and 99.5 percentiles of ``img`` to 0 and 1.
 
     The MDF does not depend on an affine change of intensities, but the L0 weight
     ``lambda_f`` does: stretching makes one default serve dim and bright photos alike.
+    Edge profiles are still measured on the unstretched image (their contrast and
+    saturation tests refer to the [0, 1] range of the file), and ``I_p`` is multiplied
+    by the gain so that Eq. 19 compares like with like.
     """
     lo, hi = np.percentile(img, [0.5, 99.5])
     if hi - lo < 1e-6:
-        return img
-    return ((img - lo) / (hi - lo)).astype(img.dtype)
+        return 0.0, 1.0
+    return float(lo), float(1.0 / (hi - lo))
 
 
 def _resize(img: np.ndarray, shape) -> np.ndarray:
@@ -349,7 +352,9 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     intr_full = Intrinsics.from_image_shape(shape, focal_px=focal_px)
     work_scale = min(1.0, max_side / max(shape))
     work_shape = tuple(max(8, round(s * work_scale)) for s in shape)
-    work = _normalise_contrast(_resize(gray, work_shape))
+    work_raw = _resize(gray, work_shape)
+    offset, gain = _contrast_gain(work_raw)
+    work = ((work_raw - offset) * gain).astype(work_raw.dtype)
     intr_work = intr_full.rescaled(work_shape)
     blur_work = max_blur * work_scale
     info = EstimateInfo(method, model, max_blur, intr_full.focal_px, work_scale)
@@ -364,7 +369,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         if profiles is None:
             from .edges import extract_edge_profiles
 
-            work_profiles = extract_edge_profiles(work, blur_work, rng=rng)
+            work_profiles = extract_edge_profiles(work_raw, blur_work, rng=rng)
         else:
             work_profiles = profiles.rescaled(work_scale) if work_scale != 1 else profiles
         info.n_profiles = len(work_profiles)
@@ -401,7 +406,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 weights > 0)
             ep_images = None
             if work_profiles is not None and (method == "ep" or lambda_ip > 0):
-                ep_images = _edge_images(level, work_profiles, s)
+                ep_images = _edge_images(level, work_profiles, s, gain)
             lam_f = lambda_f * s ** -_LAMBDA_F_SCALING  # coarse levels: sharper edges, larger weight
             for it in range(n_iter):
                 if method != "ep":
@@ -440,11 +445,11 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     return MotionEstimate(final, latent, out_profiles, info)
 
 
-def _edge_images(level: _Level, profiles, scale: float):
+def _edge_images(level: _Level, profiles, scale: float, gain: float):
     """``(I_p, I_ep, M)`` of Eq. 19 at this level (profiles in working coordinates)."""
     from .prediction import edge_profile_image, prediction_image
 
-    i_p = prediction_image(profiles, level.shape, scale=scale)
+    i_p = prediction_image(profiles, level.shape, scale=scale) * level.blurred.dtype.type(gain)
     i_ep, mask = edge_profile_image(level.blurred, profiles, scale=scale)
     return i_p, i_ep, mask
 
