@@ -88,6 +88,10 @@ _PLATEAU_FRACTION = 0.3
 #: Largest centroid shift (px) a curved edge may cause (see ``_analyse``).
 _CURVATURE_BIAS = 0.5
 
+#: Smallest alpha level (and one minus the largest) that bounds the transition; the
+#: plateaus lie beyond. Real plateaus carry gentle shading, so not much below 0.05.
+_TAU_FLOOR = 0.05
+
 _OUTLIER_FLOOR = 0.4
 _OUTLIER_MADS = 3.0
 _SOFT_TAU = 0.2
@@ -994,7 +998,7 @@ def _analyse(S, geom: _Geometry, tests: _Tests, final: bool, max_tilt: float) ->
     fail((C0 < 0.5 * tests.min_contrast) & bump, _NOT_MONOTONE)
     fail(C0 < 0.5 * tests.min_contrast, _LOW_CONTRAST)
     a0 = (m - c2_0[:, None]) / np.maximum(C0, 1e-6)[:, None]
-    tau = np.clip(3.0 * noise_mean / np.maximum(C0, 1e-6), 0.02, 0.25)[:, None]
+    tau = np.clip(3.0 * noise_mean / np.maximum(C0, 1e-6), _TAU_FLOOR, 0.25)[:, None]
     # the half-way crossing nearest to the window centre anchors the transition
     above = a0 >= 0.5
     cross = ~above[:, :-1] & above[:, 1:]
