@@ -111,9 +111,9 @@ class LatentDomain:
         """``T^T M^T r``: observed (h, w) -> domain."""
         return self.op.adjoint(self.embed(r))
 
-    def extend(self, g: np.ndarray, extra: int = 0) -> np.ndarray:
-        """The observation mirrored (``reflect``) into the pad (and ``extra`` more pixels)."""
-        return np.pad(g, self.pad + extra, mode="reflect").astype(self.dtype, copy=False)
+    def extend(self, g: np.ndarray) -> np.ndarray:
+        """The observation (h, w) mirrored (``reflect``) into the pad: domain-shaped."""
+        return np.pad(g, self.pad, mode="reflect").astype(self.dtype, copy=False)
 
 
 # --------------------------------------------------------------------------------------
