@@ -161,6 +161,19 @@ def test_edge_profile_image_is_the_gradient_inside_the_mask(blurred):
     assert np.median(along_normal[strong] / iep[strong]) > 0.97
 
 
+def test_images_do_not_depend_on_how_the_profiles_are_batched(blurred, monkeypatch):
+    import napari_edgecme.core.prediction as prediction
+
+    case, prof = blurred
+    whole = (prediction_image(prof, case.blurred.shape),
+             *profile_masks(prof, case.blurred.shape, mask="multi"))
+    monkeypatch.setattr(prediction, "_BLOCK_PIXELS", 3000)  # a few profiles per batch
+    batched = (prediction_image(prof, case.blurred.shape),
+               *profile_masks(prof, case.blurred.shape, mask="multi"))
+    for a, b in zip(whole, batched, strict=True):
+        assert np.array_equal(a, b)
+
+
 def test_rgb_input_uses_luminance(blurred):
     case, prof = blurred
     rgb = np.repeat(case.blurred[..., None], 3, -1)

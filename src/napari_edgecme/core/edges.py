@@ -25,9 +25,10 @@ the blur; profiles sampled bilinearly along the normal and averaged over a few p
 lines; kept only when both plateaus are flat against the contrast, the contrast is high
 enough against the noise, the transition is monotone, narrower than the largest blur and
 free of an inner plateau (a second edge), the parallel lines agree (the edge is locally
-straight), nothing is saturated, and the profile agrees with its neighbours of similar
-orientation. Near-duplicates along an edge are suppressed so that the kept profiles are
-at least ``spacing`` pixels apart.
+straight), nothing is saturated, the profile agrees with its neighbours of similar
+orientation, and it is no wider than the blur field that all profiles together show
+(soft or shaded scene edges would make the blur look larger). Near-duplicates along an
+edge are suppressed so that the kept profiles are at least ``spacing`` pixels apart.
 """
 
 from __future__ import annotations
@@ -691,8 +692,10 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
         maximum; floating point must be in [0, 1].
     max_blur : float
         Largest blur extent (pixels) expected: the side of the largest local PSF's
-        bounding box. It sets the Canny scale, the window length
-        ``R = ceil(max_blur) + plateau + 1`` and the widest transition accepted.
+        bounding box. It sets the Canny scale, the half-length of the profiles
+        ``R = ceil(max_blur) + max(3, round(0.3 max_blur)) + 1`` (``offsets`` run from
+        ``-R`` to ``R``), the widest transition accepted (``sqrt(2) max_blur + 1``: a
+        bounding box's diagonal) and the span of the parallel lines.
     rng : None, int or numpy.random.Generator
         Used only when more than ``max_candidates`` candidates are found, to pick a
         random subset of them. Same input and seed give identical profiles.
@@ -706,13 +709,16 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
         Smallest accepted ``|c1 - c2| / noise`` (noise from :func:`estimate_noise`).
     spacing : float, optional
         Least distance (px) between kept profiles, applied by greedy non-maximum
-        suppression in order of quality. Default ``max(4, max_blur / 2)``: neighbouring
-        profiles then share few samples (their parallel lines span about ``max_blur / 2``).
+        suppression in order of quality. Default ``max(4, 0.35 max_blur)``: neighbouring
+        profiles on one edge then overlap by at most half of their parallel lines (which
+        span ``0.8 max_blur``), so that the kept set is spread along the edges rather
+        than piled up where the gradient is strongest.
     n_lines : int
         Parallel lines averaged per profile (default 5).
     line_spread : float, optional
         The parallel lines lie at ``-s .. s`` px along the tangent; default
-        ``s = max(2, max_blur / 4)``. The edge must be straight over that span.
+        ``s = max(2, 0.4 max_blur)``: the edge must follow one smooth curve over about
+        the tangential reach of the PSF, because the blur integrates along it there.
     flat_tol : float
         Largest RMS deviation of the plateaus in alpha units (fraction of the contrast),
         on top of an allowance for the measured noise.
@@ -748,19 +754,53 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
 
     Notes
     -----
-    Each candidate is processed twice. Pass 1 samples ``n_lines`` parallel lines along
-    the Canny normal through the edge pixel, estimates the plateaus ``c1, c2`` and the
-    transition, and from the centroids of the single lines the tilt of the true normal
-    (the slope of centroid against lateral offset is ``tan`` of the angle error). Pass 2
-    samples again through the centroid along the corrected normal and applies every test.
-    Both passes try windows from ``R`` down to about ``0.4 R`` and keep the largest that
-    passes, so that an edge whose blur is smaller than ``max_blur`` is not refused for
-    clutter far beyond its transition. The alpha matte is cleaned into a monotone
-    cumulative (the mean of the running maximum from the left and running minimum from
-    the right; zero before and one after the transition); its increments at the bin
-    edges ``offsets +- 1/2`` are the derivative (Eq. 11) and its centroid is the edge
-    position (claims 1-2). The matte and derivative are finally resampled so that the
-    centroid sits at offset 0.
+    *Candidates.* Canny on the luminance: Gaussian gradient at ``sigma``, non-maximum
+    suppression along the gradient, hysteresis between thresholds set by the weakest
+    accepted edge (``min_contrast`` spread over ``max_blur``) and by the gradient noise;
+    a cheap contrast screen; the strongest pixel per cell of ``spacing / 2`` px.
+
+    *Two passes.* Pass 1 samples ``n_lines`` parallel lines (bilinear, half-pixel steps)
+    along the Canny normal through the edge pixel, finds the plateaus ``c1, c2`` and the
+    transition, and fits the centroids of the single lines against their lateral offset
+    ``s`` by ``a + b s + c s^2``: ``atan(b)`` is the error of the normal angle and ``2c``
+    the curvature of the edge. Pass 2 samples again through the centroid, along the
+    corrected normal, on lines bent by ``c s^2`` so that they cross a round edge at the
+    same place, and applies every test. Both passes try windows from ``R`` down to
+    ``0.3 R`` and keep the largest that passes, so that an edge whose blur is smaller
+    than ``max_blur`` is not refused for clutter far beyond its transition; the
+    validated half-length is kept per profile (``EdgeProfiles.window``).
+
+    *Tests* (reasons in :data:`REASONS`): no sample at ``saturation``; contrast at least
+    ``min_contrast`` and ``min_snr`` times the noise; the transition (where alpha is
+    between 0.05 and 0.95, or three noise levels) inside the window with flat margins of
+    at least 3 px and 30 % of its width on both sides; both plateaus and every single
+    line flat within ``flat_tol`` (plus noise); alpha non-decreasing within
+    ``monotone_tol``; the transition no wider than ``sqrt(2) max_blur + 1``; no inner
+    plateau (alpha stalling between 0.1 and 0.9 over ``0.3 max_blur``: a second edge);
+    the single lines' centroids on a smooth curve within ``straight_tol``, their shapes
+    alike, the normal correction under 12 degrees, and the curvature small enough that
+    it moves the centroid by less than half a pixel (``|kappa| max_blur^2 / 24``).
+    Among the profiles that pass, two consistency tests compare profiles with each other:
+    a derivative far from the median of its neighbours of similar orientation is an
+    outlier, and a derivative wider than the camera-shake blur field allows is a soft or
+    shaded scene edge. The variance of a blurred step's derivative is ``n^T Sigma(x) n``
+    (``Sigma`` the local PSF covariance) plus the sharp edge's own variance, never less;
+    for camera shake ``Sigma(x)`` is close to a quadratic polynomial in ``x``, which is
+    fitted by quantile regression (20 %) to the profiles' variances.
+
+    *Alignment.* The alpha matte is cleaned into a monotone cumulative (the mean of the
+    running maximum from the left and the running minimum from the right; zero before
+    and one after the transition); its increments at the bin edges ``offsets +- 1/2`` are
+    the derivative (Eq. 11) and its centroid is the edge position (claims 1-2). The matte
+    and the derivative are resampled so that the centroid sits at offset 0.
+
+    *Quality* is the geometric mean of six scores in (0, 1]: contrast-to-noise
+    (``1 - exp(-snr / 20)``), plateau flatness, monotonicity and straightness (each
+    ``1 - 0.5 x`` its statistic over its limit), agreement with the neighbours (their
+    NCC; 0.75 when there are too few) and the validated window's share of ``R``.
+
+    Real photos are stored through the sRGB curve; linearise them first
+    (:func:`srgb_to_linear`) and use the same linear image for the data terms.
 
     References
     ----------

@@ -116,7 +116,7 @@ def prediction_image(profiles: EdgeProfiles, shape, *, scale: float = 1.0,
     ndarray of shape ``shape``
         Each segment passes through a (scaled) centroid along the edge tangent (bent by
         the profile's measured ``curvature``, so that round edges stay round) with a
-        triangular cross-section one pixel wide on each side whose integral across the
+        Gaussian cross-section (standard deviation 0.55 px) whose integral across the
         line is ``|c1 - c2|``; along the segment the ends are anti-aliased. Where
         segments overlap (neighbouring profiles on one edge) the larger value is kept,
         so that a continuous edge is one line, not a sum of overlapping ones.
@@ -139,21 +139,34 @@ def prediction_image(profiles: EdgeProfiles, shape, *, scale: float = 1.0,
     else:
         lengths = np.full(len(profiles), check_positive(line_length, "line_length"))
     centres = _scaled_centroids(profiles, scale)
-    half_len = lengths[:, None] / 2.0
-    half = math.ceil(float(half_len.max()) + 1.5)
-    flat, drow, dcol, inside = _stencil(centres, half, (H, W))
-    phi = profiles.normal_angle[:, None]
-    along = drow * np.cos(phi) - dcol * np.sin(phi)  # along the tangent
-    # distance along the normal from the (curved) edge through the centroid
-    across = (drow * np.sin(phi) + dcol * np.cos(phi)
-              - 0.5 * (profiles.curvature[:, None] / scale) * along**2)
-    profile = np.exp(-0.5 * (across / _LINE_SIGMA) ** 2) / (_LINE_SIGMA * math.sqrt(2 * math.pi))
-    profile[np.abs(across) > 3.5 * _LINE_SIGMA] = 0.0
-    ends = np.clip(half_len + 0.5 - np.abs(along), 0.0, 1.0)
-    val = profiles.contrast[:, None] * profile * ends
-    keep = inside & (val > 0)
-    np.maximum.at(out, flat[keep], val[keep].astype(dtype))
+    half = math.ceil(float(lengths.max()) / 2.0 + 1.5)
+    norm = 1.0 / (_LINE_SIGMA * math.sqrt(2 * math.pi))
+    for sl in _blocks(len(profiles), half):
+        flat, drow, dcol, inside = _stencil(centres[sl], half, (H, W))
+        phi = profiles.normal_angle[sl, None]
+        along = drow * np.cos(phi) - dcol * np.sin(phi)  # along the tangent
+        # distance along the normal from the (curved) edge through the centroid
+        across = (drow * np.sin(phi) + dcol * np.cos(phi)
+                  - 0.5 * (profiles.curvature[sl, None] / scale) * along**2)
+        near = inside & (np.abs(across) <= 3.5 * _LINE_SIGMA)
+        ends = np.clip(lengths[sl, None] / 2.0 + 0.5 - np.abs(along), 0.0, 1.0)
+        val = (profiles.contrast[sl, None] * norm * np.exp(-0.5 * (across / _LINE_SIGMA) ** 2)
+               * ends)
+        keep = near & (val > 0)
+        np.maximum.at(out, flat[keep], val[keep].astype(dtype))
     return out.reshape(H, W)
+
+
+#: Stencil pixels handled at once (bounds the memory for many profiles and large masks).
+_BLOCK_PIXELS = 1 << 21
+
+
+def _blocks(n: int, half: int):
+    """Slices of profiles whose stencils hold at most :data:`_BLOCK_PIXELS` pixels."""
+    per = (2 * half + 1) ** 2
+    step = max(1, _BLOCK_PIXELS // per)
+    for start in range(0, n, step):
+        yield slice(start, min(n, start + step))
 
 
 def _default_radius(profiles: EdgeProfiles, scale: float) -> float:
@@ -204,23 +217,32 @@ def profile_masks(profiles: EdgeProfiles, shape, *, scale: float = 1.0, mask: st
         return owner.reshape(H, W) >= 0, owner.reshape(H, W)
     centres = _scaled_centroids(profiles, scale)
     half = math.ceil(radius + 1.0)
-    flat, drow, dcol, inside = _stencil(centres, half, (H, W))
-    phi = profiles.normal_angle[:, None]
-    across = drow * np.sin(phi) + dcol * np.cos(phi)
-    along = drow * np.cos(phi) - dcol * np.sin(phi)
-    reach = np.minimum(radius, profiles.window * scale)[:, None]
-    near = inside & (np.abs(across) <= reach)
-    sel = near & (np.abs(along) <= 0.5)
-    if mask == "multi":
-        sel |= near & (np.abs(along) <= np.abs(across) * math.tan(angular_width / 2))
-    # nearest centroid wins where masks overlap; ties go to the lower index
-    dist = np.hypot(across, along)
+    slope = math.tan(angular_width / 2)
+    reach_all = np.minimum(radius, profiles.window * scale)
+
+    def covered(sl):
+        """Flat indices, distances to the centroid and the profile of each masked pixel."""
+        flat, drow, dcol, inside = _stencil(centres[sl], half, (H, W))
+        phi = profiles.normal_angle[sl, None]
+        across = drow * np.sin(phi) + dcol * np.cos(phi)
+        along = drow * np.cos(phi) - dcol * np.sin(phi)
+        near = inside & (np.abs(across) <= reach_all[sl, None])
+        sel = near & (np.abs(along) <= 0.5)
+        if mask == "multi":
+            sel |= near & (np.abs(along) <= np.abs(across) * slope)
+        idx = np.broadcast_to(np.arange(sl.start, sl.stop)[:, None], flat.shape)
+        return flat[sel], np.hypot(across, along)[sel], idx[sel]
+
+    # the nearest centroid wins where masks overlap; ties go to the lowest index
     best = np.full(H * W, np.inf)
-    np.minimum.at(best, flat[sel], dist[sel])
-    idx = np.broadcast_to(np.arange(len(profiles))[:, None], flat.shape)
-    win = sel & (dist <= best[flat])
-    order = np.argsort(-idx[win], kind="stable")  # assign higher indices first ...
-    owner[flat[win][order]] = idx[win][order]  # ... so the lowest index is written last
+    for sl in _blocks(len(profiles), half):
+        flat, dist, _ = covered(sl)
+        np.minimum.at(best, flat, dist)
+    for sl in reversed(list(_blocks(len(profiles), half))):
+        flat, dist, idx = covered(sl)
+        win = dist <= best[flat]
+        order = np.argsort(-idx[win], kind="stable")  # higher indices first, lowest last
+        owner[flat[win][order]] = idx[win][order]
     owner = owner.reshape(H, W)
     return owner >= 0, owner
 
