@@ -281,7 +281,7 @@ def test_psf_draws_the_field_at_the_motion_image_size(cd, capsys):
 def _write_stack(path):
     import tifffile
 
-    tifffile.imwrite(path, np.zeros((3, 32, 32), np.float32))
+    tifffile.imwrite(path, np.zeros((3, 32, 32), np.float32), photometric="minisblack")
 
 
 def _write_nan(path):
