@@ -7,16 +7,16 @@ varying blur as the efficient filter flow (EFF) of
 tiles, one PSF per tile (Eq. 9), overlap-add. Three methods:
 
 ``"hyperlaplacian"`` (default)
-    Krishnan & Fergus [1]_:
+    Krishnan & Fergus [1]_ (KF):
 
     .. math::  \min_f \tfrac{\lambda}{2} \|M T f - g\|^2 + \sum_i |(D_x f)_i|^\alpha
-               + |(D_y f)_i|^\alpha ,\qquad \alpha \in \{1/2, 2/3\}    (KF Eq. 1)
+               + |(D_y f)_i|^\alpha ,\qquad \alpha \in \{1/2, 2/3\}
 
     by half-quadratic splitting: the auxiliary gradients ``w`` get an exact
     per-pixel shrinkage (the roots of a cubic for 1/2, of a quartic for 2/3;
-    :mod:`~napari_edgecme.core.deconv_prior`, KF Eqs. 5, 11-12), then the image the
-    quadratic step ``(lam T^T M^T M T + beta D^T D) f = lam T^T M^T g + beta D^T w``
-    (KF Eq. 3 with the SV operator), for ``beta`` = 1, 2 sqrt 2, 8, ... <= 256 (the
+    :mod:`~napari_edgecme.core.deconv_prior`: KF's w sub-problem), then the image by
+    the quadratic step ``(lam T^T M^T M T + beta D^T D) f = lam T^T M^T g + beta D^T w``
+    (KF's x sub-problem, with the SV operator), for ``beta`` = 1, 2 sqrt 2, 8, ... <= 256 (the
     reference schedule: 6 steps), one inner iteration each. Two image-step solvers:
 
     * ``solver="fourier"`` (default): per EFF tile, the closed-form Fourier solution
@@ -176,7 +176,7 @@ def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
         Method parameters (unknown names are refused):
 
         hyperlaplacian
-            ``lam`` (1500): data weight ``lambda`` of KF Eq. 1, for images in [0, 1].
+            ``lam`` (1500): data weight ``lambda`` of the objective above, for images in [0, 1].
             The reference uses 2e3 at small noise; for 1 % noise 1.5e3 is best on
             average over our synthetic sets (1e3-2e3 within 0.3 dB, 3e3 1 dB worse).
             Raise it for cleaner photos, lower it for noisier ones.

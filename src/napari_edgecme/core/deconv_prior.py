@@ -4,16 +4,16 @@ Half-quadratic splitting (Krishnan & Fergus 2009 [1]_) replaces the prior
 ``sum_i |(D f)_i|^alpha`` by ``sum_i |w_i|^alpha + beta / 2 ||D f - w||^2`` and
 alternates an image step (quadratic in ``f``) with a per-pixel step in ``w``:
 
-.. math::  w^*(v) = \\arg\\min_w |w|^\\alpha + \\tfrac{\\beta}{2} (w - v)^2 ,   (KF Eq. 5)
+.. math::  w^*(v) = \\arg\\min_w |w|^\\alpha + \\tfrac{\\beta}{2} (w - v)^2 ,
 
 with ``v`` the current gradient. For ``w > 0`` (take ``v > 0``; the solution is odd in
 ``v``) a stationary point satisfies ``alpha w^(alpha-1) + beta (w - v) = 0``. With a
 change of variable that equation is a polynomial with closed-form roots:
 
 * ``alpha = 1/2``, ``w = s^2``: the depressed cubic ``s^3 - v s + 1/(2 beta) = 0``
-  (KF Eq. 11 in the variable ``sqrt(w)``); its largest real root is the local minimum;
+  (KF's cubic, here in the variable ``sqrt(w)``); its largest real root is the local minimum;
 * ``alpha = 2/3``, ``w = s^3``: the depressed quartic ``s^4 - v s + 2/(3 beta) = 0``
-  (KF Eq. 12 in the variable ``w^(1/3)``), solved by Ferrari's method; the larger root of
+  (KF's quartic, here in the variable ``w^(1/3)``), solved by Ferrari's method; the larger root of
   the quadratic factor with positive roots is the local minimum.
 
 The minimiser is that root when its energy beats ``w = 0`` and 0 otherwise, so
@@ -99,43 +99,44 @@ def grad_adjoint(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
 # the w-step
 # --------------------------------------------------------------------------------------
 
-def _largest_root_cubic_half(v, beta):
-    """alpha = 1/2: largest real root ``s`` of ``s^3 - v s + q = 0``, q = 1/(2 beta); NaN if
-    the cubic has a single real root (then it is negative and no ``w > 0`` is stationary)."""
+def _stationary_w_half(v, beta):
+    """alpha = 1/2: ``w = s^2`` with ``s`` the largest real root of ``s^3 - v s + q = 0``,
+    ``q = 1/(2 beta)``; NaN where the cubic has a single real root (it is then negative
+    and no ``w > 0`` is stationary)."""
     q = 0.5 / beta
-    # three real roots iff 4 v^3 >= 27 q^2
+    # three real roots iff 4 v^3 >= 27 q^2, i.e. |arg| <= 1 (trigonometric form)
     arg = -(1.5 * q / v) * np.sqrt(3.0 / v)
     with np.errstate(invalid="ignore"):
         s = 2.0 * np.sqrt(v / 3.0) * np.cos(np.arccos(arg) / 3.0)
-    return np.where(np.abs(arg) <= 1.0, s, np.nan), 2.0
+    return np.where(np.abs(arg) <= 1.0, s * s, np.nan)
 
 
-def _largest_root_quartic_two_thirds(v, beta):
-    """alpha = 2/3: the local-minimum root ``s`` of ``s^4 - v s + r = 0``, r = 2/(3 beta)
-    (Ferrari); NaN where no positive root exists."""
+def _stationary_w_two_thirds(v, beta):
+    """alpha = 2/3: ``w = s^3`` with ``s`` the local-minimum root of ``s^4 - v s + r = 0``,
+    ``r = 2/(3 beta)``, by Ferrari's method; NaN where no positive root exists."""
     r = 2.0 / (3.0 * beta)
-    # resolvent cubic m^3 - r m - v^2 / 8 = 0, largest real root m > sqrt(r) > 0
+    # resolvent cubic m^3 - r m - v^2 / 8 = 0: its largest real root m > sqrt(r) > 0
+    # makes s^4 - v s + r = (s^2 + m)^2 - 2m (s + v / (4m))^2
     half_q = -v * v / 16.0  # Q / 2 with Q = -v^2 / 8
     disc = half_q * half_q - (r / 3.0) ** 3  # (Q/2)^2 + (P/3)^3 with P = -r
     with np.errstate(invalid="ignore"):
         sq = np.sqrt(np.maximum(disc, 0.0))
-        m_one = np.cbrt(-half_q + sq) + np.cbrt(-half_q - sq)
+        m_one = np.cbrt(-half_q + sq) + np.cbrt(-half_q - sq)  # Cardano, one real root
         arg = np.clip((-half_q) / np.sqrt((r / 3.0) ** 3), -1.0, 1.0)
-        m_three = 2.0 * np.sqrt(r / 3.0) * np.cos(np.arccos(arg) / 3.0)
+        m_three = 2.0 * np.sqrt(r / 3.0) * np.cos(np.arccos(arg) / 3.0)  # three real roots
         m = np.where(disc > 0, m_one, m_three)
+        # positive roots solve s^2 - sqrt(2m) s + m - sqrt(2m) v / (4m) = 0
         root2m = np.sqrt(2.0 * m)
-        delta = root2m * v / m - 2.0 * m  # discriminant of s^2 - sqrt(2m) s + m - sqrt(2m) v/(4m)
+        delta = root2m * v / m - 2.0 * m
         s = 0.5 * (root2m + np.sqrt(delta))
-    return np.where(delta >= 0, s, np.nan), 3.0
+    return np.where(delta >= 0, s**3, np.nan)
 
 
 def _stationary_w(v, beta, alpha):
     """The local minimiser ``w > 0`` for ``v > 0`` (NaN where none exists)."""
     if alpha == 0.5:
-        s, power = _largest_root_cubic_half(v, beta)
-    else:
-        s, power = _largest_root_quartic_two_thirds(v, beta)
-    return s**power
+        return _stationary_w_half(v, beta)
+    return _stationary_w_two_thirds(v, beta)
 
 
 def shrink_threshold(beta: float, alpha: float) -> float:
@@ -162,7 +163,7 @@ def shrink_threshold(beta: float, alpha: float) -> float:
 
 def shrink_hyperlaplacian(v: np.ndarray, beta: float, alpha: float,
                           threshold: float | None = None) -> np.ndarray:
-    """The exact w-step ``argmin_w |w|^alpha + beta/2 (w - v)^2``, elementwise (KF Eq. 5).
+    """The exact w-step ``argmin_w |w|^alpha + beta/2 (w - v)^2``, elementwise (KF's w sub-problem).
 
     Parameters
     ----------

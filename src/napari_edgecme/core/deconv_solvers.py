@@ -142,7 +142,7 @@ class PatchFourier:
     convolution with ``k_r`` inside the box:
 
     .. math::  \hat f_r = \frac{\lambda \overline{\hat k_r} \hat y_r + \widehat{(D^T z)}_r}
-               {\lambda |\hat k_r|^2 + \beta (|\hat d_x|^2 + |\hat d_y|^2)}   (KF Eq. 3)
+               {\lambda |\hat k_r|^2 + \beta (|\hat d_x|^2 + |\hat d_y|^2)}
 
     (``z = beta w``, the prior's pull; ``z = 0`` gives the Wiener filter), and the
     solution is ``f = sum_r omega_r C_r^T f_r`` with the EFF windows ``omega_r``, which
@@ -488,7 +488,7 @@ def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alp
                          betas, inner_iterations: int, solver: str,
                          fourier: PatchFourier | None, cg_iterations: int, cg_tol: float,
                          border_iterations: int, state: dict, precondition: bool = True):
-    """Half-quadratic splitting for the hyper-Laplacian prior on one block (KF Alg. 1).
+    """Half-quadratic splitting for the hyper-Laplacian prior on one block (KF's algorithm).
 
     ``min_f lam/2 ||M T f - g||^2 + sum |D_x f|^alpha + |D_y f|^alpha``; for each
     ``beta`` in ``betas`` and each inner iteration: the w-step
