@@ -191,6 +191,7 @@ def test_deblur_falls_back_to_xu_with_one_warning_line_when_edges_are_missing(tm
     assert status == 0, err
     warning = [line for line in err if line.startswith("edgecme: warning:")]
     assert len(warning) == 1 and "falling back to method 'xu'" in warning[0]
+    assert "(xu+ep fell back to xu," in err[-1]
     assert read_image(tmp_path / "r.png").shape == (96, 96)
 
 
@@ -292,6 +293,12 @@ def _write_nan(path):
     tifffile.imwrite(path, img)
 
 
+def _write_counts(path):
+    import tifffile
+
+    tifffile.imwrite(path, np.full((64, 64), 4095.0, np.float32))  # raw counts, not [0, 1]
+
+
 BAD = {
     "missing image": (["deblur", "nope.png", "-o", "out.png"], "image not found: nope.png"),
     "not an image": (["deblur", "text.png", "-o", "out.png"], "cannot read image text.png"),
@@ -330,6 +337,9 @@ BAD = {
     "stack": (["deblur", "stack.tif", "-o", "out.png"], "expected a gray or RGB image"),
     "NaN pixels": (["deconvolve", "nan.tif", "--motion", "nan-truth.json", "-o", "out.tif"],
                    "non-finite values"),
+    "float image not scaled to [0, 1]": (["deconvolve", "counts.tif", "--motion",
+                                          "nan-truth.json", "-o", "out.tif"],
+                                         "must be scaled to [0, 1]"),
     "bad grid": (["psf", "truth.json", "-o", "out.png", "--grid", "3by3"],
                  "expected ROWSxCOLS"),
     "option of another method": (["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
@@ -353,6 +363,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(case, cd, capsys):
     write_image("flat.png", np.full((64, 64), 0.4))
     _write_stack("stack.tif")
     _write_nan("nan.tif")
+    _write_counts("counts.tif")
     from napari_edgecme.core.camera import Intrinsics
 
     CameraMotion.identity("translation", Intrinsics.from_image_shape((64, 64))).save(

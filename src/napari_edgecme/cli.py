@@ -238,12 +238,6 @@ def read_input_image(path, console: _Console | None = None) -> np.ndarray:
         raise CLIError(f"{path}: expected a gray or RGB image, shape (rows, cols) or "
                        f"(rows, cols, 3); got shape {arr.shape} (a stack or volume: "
                        "save its planes as separate images)")
-    if np.issubdtype(arr.dtype, np.floating) and console is not None:
-        finite = arr[np.isfinite(arr)]
-        if finite.size and (finite.min() < 0 or finite.max() > 1):
-            console.warn(f"{path}: floating-point values outside [0, 1] (from "
-                         f"{finite.min():g} to {finite.max():g}); they are taken as they are "
-                         "and the result is clipped to [0, 1]")
     return arr
 
 
@@ -397,9 +391,10 @@ def _estimate_motion(args, console: _Console, image, path: Path):
     return result, max_blur, focal_source
 
 
-def _estimate_summary(result, max_blur: float, focal_source: str) -> str:
+def _estimate_summary(result, requested: str, max_blur: float, focal_source: str) -> str:
     info = result.info
-    method = info.method + (" fell back to xu" if "fell back" in info.message else "")
+    method = info.method if info.method == requested else (
+        f"{requested} fell back to {info.method}")
     text = (f"{_describe(result.motion)} ({method}, max blur {max_blur:g} px, focal "
             f"{info.focal_px:.0f} px from {focal_source}")
     if info.n_profiles:
@@ -418,7 +413,8 @@ def cmd_estimate(args, console: _Console) -> int:
     result, max_blur, source = _estimate_motion(args, console, image, path)
     with _writing(args.output) as (tmp,):
         result.motion.save(tmp)
-    console.info(f"{_estimate_summary(result, max_blur, source)}; wrote {args.output}")
+    console.info(f"{_estimate_summary(result, args.method, max_blur, source)}; "
+                 f"wrote {args.output}")
     return EXIT_OK
 
 
@@ -440,7 +436,7 @@ def cmd_deblur(args, console: _Console) -> int:
         if args.save_motion is not None:
             result.motion.save(tmps[1])
     wrote = ", ".join(str(p) for _, p in outputs)
-    console.info(f"{_estimate_summary(result, max_blur, source)}; deconvolved "
+    console.info(f"{_estimate_summary(result, args.method, max_blur, source)}; deconvolved "
                  f"({args.deconvolution}) in {seconds:.1f} s; wrote {wrote}")
     return EXIT_OK
 
