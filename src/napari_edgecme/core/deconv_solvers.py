@@ -351,8 +351,8 @@ class PatchFourier:
                 if prior_hat is not None:
                     rhs += prior_hat[sel]
                 start = xhat[sel] if first else self._x_border[pos]
-                xb = self._masked_cg(sel + sl.start, pos, start, rhs, lam_c, beta_c,
-                                     inv_den[sel], border_iterations)
+                xb = yield from self._masked_cg(sel + sl.start, pos, start, rhs, lam_c,
+                                                beta_c, inv_den[sel], border_iterations)
                 xhat[sel] = xb
                 self._x_border[pos] = xb
             boxes = self._irfft(xhat).astype(self.dtype, copy=False)
@@ -364,7 +364,8 @@ class PatchFourier:
         """Batched preconditioned CG for the border tiles' masked box problems, on spectra.
 
         ``A x = lam conj(k) F(M F^-1(k x)) + beta |d|^2 x``; preconditioner ``inv_den``
-        (the unmasked closed form). Each tile has its own step sizes.
+        (the unmasked closed form). Each tile has its own step sizes. A generator that
+        yields after every iteration (for progress and cancel) and returns ``x``.
         """
         khat = self.khat[rows]
         khat_conj = np.conj(khat)
@@ -401,6 +402,7 @@ class PatchFourier:
             _rv(p)[:] *= gamma
             _rv(p)[:] += _rv(z)
             rz = rz_new
+            yield
         return x
 
 
