@@ -3,47 +3,68 @@
 An implementation of Vasu & Rajagopalan, "From local to global: edge profiles to
 camera motion in blurred images" (CVPR 2017): a headless engine
 (:mod:`napari_edgecme.core`), a napari plugin and the ``edgecme`` command line.
-Importing this package loads no Qt and no napari.
+Importing this package loads no Qt and no napari; the public names below are
+imported on first use, so ``import napari_edgecme`` (and ``edgecme --help``) is fast.
+
+Examples
+--------
+>>> from napari_edgecme import deblur, make_case, sample_image   # doctest: +SKIP
+>>> case = make_case(sample_image("camera", 256), "rotation", extent=15, rng=0)
+>>> restored, estimate = deblur(case.blurred, method="xu+ep", model="rotation")
+>>> estimate.motion.save("motion.json")
 """
 
-from .core.camera import MODELS, Intrinsics, pose_grid
-from .core.deconv import deconvolve, iter_deconvolve
-from .core.estimate import (
-    METHODS,
-    MotionEstimate,
-    deblur,
-    estimate_motion,
-    iter_estimate_motion,
-)
-from .core.metrics import aligned_psnr, aligned_ssim, motion_psf_ncc, psf_ncc
-from .core.motion import CameraMotion
-from .core.operators import EfficientFilterFlow, WarpSum, blur
-from .core.synth import edge_scene, make_case, random_trajectory, render_blur
+from importlib import import_module
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "METHODS",
-    "MODELS",
-    "CameraMotion",
-    "MotionEstimate",
-    "EfficientFilterFlow",
-    "Intrinsics",
-    "WarpSum",
-    "__version__",
-    "aligned_psnr",
-    "aligned_ssim",
-    "blur",
-    "deblur",
-    "deconvolve",
-    "edge_scene",
-    "estimate_motion",
-    "iter_deconvolve",
-    "iter_estimate_motion",
-    "make_case",
-    "motion_psf_ncc",
-    "pose_grid",
-    "psf_ncc",
-    "random_trajectory",
-    "render_blur",
-]
+#: public name -> module (relative to this package) that defines it
+_EXPORTS = {
+    "MODELS": ".core.camera",
+    "Intrinsics": ".core.camera",
+    "pose_grid": ".core.camera",
+    "CameraMotion": ".core.motion",
+    "EfficientFilterFlow": ".core.operators",
+    "WarpSum": ".core.operators",
+    "blur": ".core.operators",
+    "EdgeProfiles": ".core.edges",
+    "extract_edge_profiles": ".core.edges",
+    "profile_along_line": ".core.edges",
+    "prediction_image": ".core.prediction",
+    "edge_profile_image": ".core.prediction",
+    "METHODS": ".core.estimate",
+    "MotionEstimate": ".core.estimate",
+    "estimate_motion": ".core.estimate",
+    "iter_estimate_motion": ".core.estimate",
+    "deblur": ".core.estimate",
+    "deconvolve": ".core.deconv",
+    "iter_deconvolve": ".core.deconv",
+    "make_case": ".core.synth",
+    "render_blur": ".core.synth",
+    "random_trajectory": ".core.synth",
+    "edge_scene": ".core.synth",
+    "sample_image": ".core.synth",
+    "aligned_psnr": ".core.metrics",
+    "aligned_ssim": ".core.metrics",
+    "motion_psf_ncc": ".core.metrics",
+    "psf_ncc": ".core.metrics",
+    "read_image": ".core.io",
+    "write_image": ".core.io",
+    "Progress": ".core.progress",
+    "Cancelled": ".core.progress",
+}
+
+__all__ = ["__version__", *sorted(_EXPORTS)]
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(module, __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -495,7 +495,6 @@ def _mdf_step(level: _Level, weights, active, latent, ep_images, lambda_w, lambd
     poses = level.grid.poses(active)
     pgrid = level.patch_grid(poses)
     basis = psf_basis(level.model, level.intrinsics, poses, pgrid)
-    terms = []
     if method != "ep":
         taper = border_taper(level.shape, pgrid.psf_size // 2).astype(level.blurred.dtype)
         f_grad = _salient_gradients(np.stack(grad(latent)), level.blurred, salient) * taper
@@ -503,12 +502,13 @@ def _mdf_step(level: _Level, weights, active, latent, ep_images, lambda_w, lambd
         if _GRADIENT_SMOOTHING > 0:  # the same linear filter on both sides keeps Eq. 22 exact
             f_grad = ndimage.gaussian_filter(f_grad, (0, _GRADIENT_SMOOTHING, _GRADIENT_SMOOTHING))
             g_grad = ndimage.gaussian_filter(g_grad, (0, _GRADIENT_SMOOTHING, _GRADIENT_SMOOTHING))
-        terms.append(gradient_term(f_grad, g_grad, pgrid, basis))
-    if ep_images is not None and (method == "ep" or lambda_ip > 0):
-        i_p, i_ep, mask = ep_images
-        weight = 1.0 if method == "ep" else lambda_ip
-        terms.append(edge_profile_term(i_p, i_ep, mask, pgrid, basis, weight=weight))
-    term = terms[0] if len(terms) == 1 else terms[0] + terms[1]
+        term = gradient_term(f_grad, g_grad, pgrid, basis)
+        if ep_images is not None and lambda_ip > 0:  # Eq. 22: both terms in gradient units
+            term = term + edge_profile_term(*ep_images, pgrid, basis).scaled(lambda_ip)
+    else:
+        term = edge_profile_term(*ep_images, pgrid, basis)  # Eq. 19
+    # normalise by the data energy: lambda_w then means the same at every scale
+    term = term.scaled(1.0 / max(term.constant, 1e-30))
     result = nonneg_lasso(term, lambda_w, weights[active], max_iter=_LASSO_MAX_ITER)
     new = np.zeros(level.grid.counts)
     new[active] = result.x

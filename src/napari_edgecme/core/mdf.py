@@ -22,8 +22,10 @@ touch a full-size image:
   matrix (rows: mask pixels; columns: poses), equal to the masked rows of
   :class:`~.operators.EfficientFilterFlowWeights` (a test checks this).
 
-Each term is normalised by its data energy ``||y||^2`` so that the weights
-``lambda_Ip`` and ``lambda_w`` of Eq. 22 mean the same at every scale and image size.
+Both terms are returned unnormalised (``1/2 ||A w - y||^2``, constant ``||y||^2``): they
+are in the same units (squared gradient magnitudes, by claim 3), so Eq. 22 adds them
+with the single weight ``lambda_Ip``; the estimator then divides the sum by the data
+energy so that ``lambda_w`` means the same at every scale and image size.
 """
 
 from __future__ import annotations
@@ -63,9 +65,8 @@ def _lag_window(spectrum_prod, grid: PatchGrid, reach: int) -> np.ndarray:
     return full[..., idx[0][:, None], idx[1][None, :]]
 
 
-def gradient_term(latent, observed, grid: PatchGrid, basis: sp.csr_matrix,
-                  weight: float = 1.0) -> QuadraticTerm:
-    """``weight * sum_r ||k_r * (omega_r f) - omega_r g||^2 / (2 ||g||^2)`` over channels.
+def gradient_term(latent, observed, grid: PatchGrid, basis: sp.csr_matrix) -> QuadraticTerm:
+    """``1/2 sum_r ||k_r * (omega_r f) - omega_r g||^2`` over channels (Eq. 22, first term).
 
     Parameters
     ----------
@@ -77,7 +78,6 @@ def gradient_term(latent, observed, grid: PatchGrid, basis: sp.csr_matrix,
     grid : PatchGrid
     basis : scipy.sparse matrix of shape (n_patches * K * K, n_poses)
         :func:`psf_basis` for the active poses.
-    weight : float
 
     Returns
     -------
@@ -92,7 +92,6 @@ def gradient_term(latent, observed, grid: PatchGrid, basis: sp.csr_matrix,
     auto = _lag_window((np.abs(pf) ** 2).sum(0), grid, K - 1)  # (R, 2K-1, 2K-1) lags
     cross = _lag_window((np.conj(pf) * pg).sum(0), grid, h)  # (R, K, K): sum_t p(t) d(t+u)
     energy = float(np.sum(observed_patches.astype(np.float64) ** 2))
-    scale = weight / max(energy, 1e-30)
     # Q_r k = auto_r (*) k restricted to the K x K support: a circular convolution of
     # size M >= 2K - 1 is exact there (each lag within +-(K-1) has a distinct residue)
     M = sfft.next_fast_len(2 * K - 1, real=True)
@@ -107,15 +106,15 @@ def gradient_term(latent, observed, grid: PatchGrid, basis: sp.csr_matrix,
         k = (B @ w.astype(np.float32)).reshape(n_patches, K, K)
         conv = sfft.irfft2(sfft.rfft2(k, s=(M, M), axes=(-2, -1)) * auto_hat,
                            s=(M, M), axes=(-2, -1))
-        return scale * (BT @ conv[:, :K, :K].reshape(-1)).astype(np.float64)
+        return (BT @ conv[:, :K, :K].reshape(-1)).astype(np.float64)
 
-    linear = scale * (BT @ cross.reshape(-1).astype(np.float64))
-    return QuadraticTerm(matvec, linear, scale * energy)
+    linear = BT @ cross.reshape(-1).astype(np.float64)
+    return QuadraticTerm(matvec, linear, energy)
 
 
-def edge_profile_term(prediction, edge_profile, mask, grid: PatchGrid, basis: sp.csr_matrix,
-                      weight: float = 1.0) -> QuadraticTerm:
-    """``weight * ||M (T_w I_p - I_ep)||^2 / (2 ||M I_ep||^2)`` -- the data term of Eq. 19.
+def edge_profile_term(prediction, edge_profile, mask, grid: PatchGrid, basis: sp.csr_matrix
+                      ) -> QuadraticTerm:
+    """``1/2 ||M (T_w I_p - I_ep)||^2`` -- the data term of Eq. 19.
 
     Parameters
     ----------
@@ -125,20 +124,18 @@ def edge_profile_term(prediction, edge_profile, mask, grid: PatchGrid, basis: sp
         The edge-profile image ``I_ep``.
     mask : ndarray of shape (H, W), bool
         ``M``: where ``I_ep`` is defined.
-    grid, basis, weight
+    grid, basis
         As for :func:`gradient_term`.
     """
     matrix = masked_eff_matrix(prediction, mask, grid) @ basis  # (n_mask, n_poses)
     matrix = sp.csr_matrix(matrix, dtype=np.float64)
     target = np.asarray(edge_profile, np.float64)[np.asarray(mask, bool)]
-    energy = float(target @ target)
-    scale = weight / max(energy, 1e-30)
     mt = matrix.T.tocsr()
 
     def matvec(w):
-        return scale * (mt @ (matrix @ w))
+        return mt @ (matrix @ w)
 
-    return QuadraticTerm(matvec, scale * (mt @ target), scale * energy)
+    return QuadraticTerm(matvec, mt @ target, float(target @ target))
 
 
 def masked_eff_matrix(image, mask, grid: PatchGrid) -> sp.csr_matrix:
