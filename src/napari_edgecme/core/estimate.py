@@ -72,6 +72,7 @@ DEFAULTS = {
 
 _PYRAMID_RATIO = 1.0 / math.sqrt(2.0)
 _LASSO_MAX_ITER = 200
+_EP_UPDATES_PER_SCALE = 2
 _GRADIENT_SMOOTHING = 1.0
 _LAMBDA_F_SCALING = 1.0
 _ROLL_FROM_BLUR = 12.0  # levels whose blur (px) is below this keep theta_z = 0
@@ -203,6 +204,7 @@ class _Level:
         # coarse levels, where freeing it only adds ambiguity
         roll = 0.5 if max_blur >= _ROLL_FROM_BLUR else 0.0
         self.grid: PoseGrid = pose_grid(model, intrinsics, max_blur, roll_fraction=roll)
+        self.cache: dict = {}
 
     def motion(self, weights_grid: np.ndarray) -> CameraMotion:
         keep = weights_grid.ravel() > 0
@@ -361,6 +363,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
 
     # -- edge profiles -------------------------------------------------------------
     scales = _pyramid(work_shape, blur_work, DEFAULTS["coarsest_blur"])
+    if method == "ep":  # no latent to alternate with: re-solve once after the clean-up
+        n_iter = min(n_iter, _EP_UPDATES_PER_SCALE)
     total = len(scales) * n_iter + (1 if method != "xu" else 0)
     step = 0
     yield Progress("estimate", step, total, "preparing", n_scales=len(scales))
@@ -491,10 +495,20 @@ def _salient_gradients(latent_grad: np.ndarray, blurred: np.ndarray, fraction: f
 
 def _mdf_step(level: _Level, weights, active, latent, ep_images, lambda_w, lambda_ip, method,
               salient: float = 1.0):
-    """One MDF update on the active poses (Eq. 19 for EpAlone, Eq. 22 otherwise)."""
-    poses = level.grid.poses(active)
-    pgrid = level.patch_grid(poses)
-    basis = psf_basis(level.model, level.intrinsics, poses, pgrid)
+    """One MDF update on the active poses (Eq. 19 for EpAlone, Eq. 22 otherwise).
+
+    The active set is fixed within a level, so its tiles, PSF basis and edge-profile
+    term are built once per level and kept in ``level.cache``.
+    """
+    key = active.tobytes()
+    if level.cache.get("key") != key:
+        poses = level.grid.poses(active)
+        pgrid = level.patch_grid(poses)
+        level.cache = {"key": key, "pgrid": pgrid,
+                       "basis": psf_basis(level.model, level.intrinsics, poses, pgrid)}
+    pgrid, basis = level.cache["pgrid"], level.cache["basis"]
+    if ep_images is not None and (method == "ep" or lambda_ip > 0) and "ep" not in level.cache:
+        level.cache["ep"] = edge_profile_term(*ep_images, pgrid, basis)
     if method != "ep":
         taper = border_taper(level.shape, pgrid.psf_size // 2).astype(level.blurred.dtype)
         f_grad = _salient_gradients(np.stack(grad(latent)), level.blurred, salient) * taper
@@ -503,10 +517,10 @@ def _mdf_step(level: _Level, weights, active, latent, ep_images, lambda_w, lambd
             f_grad = ndimage.gaussian_filter(f_grad, (0, _GRADIENT_SMOOTHING, _GRADIENT_SMOOTHING))
             g_grad = ndimage.gaussian_filter(g_grad, (0, _GRADIENT_SMOOTHING, _GRADIENT_SMOOTHING))
         term = gradient_term(f_grad, g_grad, pgrid, basis)
-        if ep_images is not None and lambda_ip > 0:  # Eq. 22: both terms in gradient units
-            term = term + edge_profile_term(*ep_images, pgrid, basis).scaled(lambda_ip)
+        if "ep" in level.cache:  # Eq. 22: both terms in gradient units
+            term = term + level.cache["ep"].scaled(lambda_ip)
     else:
-        term = edge_profile_term(*ep_images, pgrid, basis)  # Eq. 19
+        term = level.cache["ep"]  # Eq. 19
     # normalise by the data energy: lambda_w then means the same at every scale
     term = term.scaled(1.0 / max(term.constant, 1e-30))
     result = nonneg_lasso(term, lambda_w, weights[active], max_iter=_LASSO_MAX_ITER)
