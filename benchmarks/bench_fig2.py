@@ -28,15 +28,16 @@ Eq. 16 is solved as a non-negative lasso, ``min 1/2 ||M w - dE||^2 + lambda sum(
 (:func:`~napari_edgecme.core.camera.pose_grid`) spanning the true re-centred poses plus
 two steps -- the question here is alignment, not the search range.
 
-Writes ``benchmarks/out/fig2.md`` (the tables) and ``benchmarks/out/fig2.png`` (the
-six panels of the paper's figure).
+Writes ``benchmarks/out/fig2.md`` (the tables), ``fig2.json`` (the numbers) and
+``benchmarks/out/fig2.png`` (the six panels of the paper's figure).
 
-    python benchmarks/bench_fig2.py [--quick]
+    python benchmarks/bench_fig2.py [--quick] [--plot-only]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import platform
@@ -261,12 +262,11 @@ def plot(sweep, models, path):
     fig = Figure(figsize=(13, 7), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, 3)
-    series = [("deg", sweep, "in-plane rotation (degrees)", "(a) / (d) in-plane rotation")]
+    series = [(sweep, "in-plane rotation spanned (degrees)", "one trajectory, rotation swept")]
     for name, rows in models.items():
-        series.append(("traj", rows, f"{name} trajectory", f"{name} model"))
-    for col, (_, rows, xlabel, title) in enumerate(series):
-        x = [lab for lab, _ in rows]
-        xs = np.arange(len(x)) if col else np.asarray(x, float)
+        series.append((rows, f"random {name} trajectory", f"{name} model"))
+    for col, (rows, xlabel, title) in enumerate(series):
+        xs = np.asarray([lab for lab, _ in rows], float)
         for key, style, label in (("dc_max", "o-", "max, projected"),
                                   ("dc_mean", "s-", "mean, projected"),
                                   ("x_dc_max", "o--", "max, extracted"),
@@ -287,16 +287,25 @@ def plot(sweep, models, path):
         axes[0, col].set_ylabel("pixels")
         axes[1, col].set_ylabel("NCC")
         axes[1, col].set_ylim(0, 1.02)
+        if col:
+            axes[0, col].set_xticks(xs)
+            axes[1, col].set_xticks(xs)
     axes[0, 0].legend(fontsize=7)
     axes[1, 0].legend(fontsize=7)
-    fig.savefig(path, dpi=80)
+    fig.savefig(path, dpi=72)
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer angles and trajectories")
+    parser.add_argument("--plot-only", action="store_true",
+                        help="redraw fig2.png from the results of the last run (fig2.json)")
     args = parser.parse_args(argv)
     OUT.mkdir(exist_ok=True)
+    if args.plot_only:
+        saved = json.loads((OUT / "fig2.json").read_text())
+        plot(saved["sweep"], saved["models"], OUT / "fig2.png")
+        return
     t0 = time.perf_counter()
     rng = np.random.default_rng(0)
     intr = Intrinsics.from_image_shape((SIZE, SIZE))
@@ -339,6 +348,7 @@ def main(argv=None) -> None:
     text = "\n".join(lines)
     print(text)
     (OUT / "fig2.md").write_text(text + "\n")
+    (OUT / "fig2.json").write_text(json.dumps({"sweep": sweep, "models": models}))
     plot(sweep, models, OUT / "fig2.png")
 
 

@@ -356,7 +356,8 @@ def test_saturated_edges_are_refused():
 @pytest.mark.parametrize("image, expected", [
     (np.full((120, 120), 0.4), "no contrast"),
     (np.random.default_rng(0).random((12, 12)), "too small for max_blur"),
-    (np.pad(np.ones((20, 20)), 20), "too small for max_blur"),
+    (np.pad(np.ones((10, 10)), 10), "too small for max_blur"),  # smaller than the blur
+    (np.pad(np.full((20, 20), 0.9), 20), "no candidate passed the validity tests"),
     (np.zeros((200, 200)), "no contrast"),
 ])
 def test_unusable_images_give_an_empty_result_with_a_reason(image, expected):
@@ -364,6 +365,18 @@ def test_unusable_images_give_an_empty_result_with_a_reason(image, expected):
     assert len(prof) == 0 and not prof
     assert expected in prof.reason
     assert prof.derivatives.shape == (0, prof.offsets.size)
+
+
+def test_edges_near_the_border_use_windows_that_fit(rng):
+    img = np.full((160, 100), 0.2, np.float32)
+    img[:, 16:] = 0.7  # a straight edge 16 px from the left border
+    case = make_case(img, "translation", extent=7, rng=1)
+    prof = extract_edge_profiles(case.blurred, 15, rng=0)
+    assert len(prof) >= 5
+    assert np.all(prof.window < prof.offsets[-1])  # the full window would leave the image
+    ends = prof.centroids - prof.window[:, None] * prof.normals
+    assert ends[:, 1].min() >= -0.5
+    assert np.median(np.abs(prof.centroids[:, 1] - 15.5)) < 0.3
 
 
 def test_an_image_without_edges_says_so(rng):

@@ -839,7 +839,10 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
     def empty(reason):
         return EdgeProfiles.empty(reason, offsets, shape, max_blur, stats)
 
-    border = math.ceil(geom.reach + sigma) + 2
+    # candidates need room for the smallest window; near the border the larger ones are
+    # skipped candidate by candidate
+    border = math.ceil(math.hypot(geom.windows[-1] + 1.0, float(np.max(np.abs(geom.lateral))))
+                       + sigma) + 2
     if min(shape) <= 2 * border + 2:
         return empty(f"image {shape[0]}x{shape[1]} is too small for max_blur={max_blur:g}: "
                      f"profiles need about {2 * border + 3} px per side")
@@ -1150,32 +1153,56 @@ def _analyse(S, geom: _Geometry, tests: _Tests, final: bool, max_tilt: float) ->
             "snr": C / tests.noise}
 
 
+def _window_limit(centres, angles, lateral, bend, shape) -> np.ndarray:
+    """Largest window half-length (px) whose samples stay inside the image, per profile."""
+    lat = float(np.max(np.abs(lateral)))
+    sag = np.abs(bend) * lat**2 if bend is not None else 0.0
+    H, W = shape
+    limit = np.full(len(centres), np.inf)
+    for axis, size, normal, tangent in ((0, H, np.sin(angles), np.cos(angles)),
+                                        (1, W, np.cos(angles), np.sin(angles))):
+        room = np.minimum(centres[:, axis], size - 1 - centres[:, axis])
+        room = room - lat * np.abs(tangent) - sag * np.abs(normal)
+        with np.errstate(divide="ignore"):
+            along = np.where(np.abs(normal) > 1e-9, room / np.abs(normal), np.inf)
+        limit = np.minimum(limit, np.where(room >= 0, along - 0.5, -1.0))
+    return np.floor(limit)
+
+
 def _best_window(S_full, geom: _Geometry, tests: _Tests, final: bool, max_tilt: float,
-                 windows=None) -> dict:
+                 windows=None, limit=None) -> dict:
     """Run :func:`_analyse` on nested windows (largest first); keep the largest that passes.
 
-    The reason reported for a candidate that fails everywhere is the largest window's.
-    Arrays of the matte and cumulative are returned on the full fine grid, continued by
-    0 and 1 outside the chosen window.
+    ``limit`` (n,) caps the window of each candidate (near the image border). The reason
+    reported for a candidate that fails everywhere is that of the largest window it was
+    tried with (``"too close to the image border"`` if none fits). Arrays of the matte and
+    cumulative are returned on the full fine grid, continued by 0 and 1 outside the
+    chosen window.
     """
     n, _L, M = S_full.shape
     windows = geom.windows if windows is None else windows
-    out = None
+    limit = np.full(n, np.inf) if limit is None else np.asarray(limit, float)
+    out = {"reason": np.full(n, _BORDER, np.int64), "alpha": np.zeros((n, M)),
+           "cdf": np.zeros((n, M)), "ia": np.zeros(n, np.int64), "ib": np.zeros(n, np.int64),
+           "window": np.zeros(n, np.int64)}
+    reported = np.zeros(n, bool)
     todo = np.arange(n)
-    for k, R in enumerate(windows):
+    for R in windows:
+        fits = limit[todo] >= R
+        wait, todo = todo[~fits], todo[fits]
+        if todo.size == 0:
+            todo = wait
+            continue
         lo = 2 * (geom.half - R)
         res = _analyse(S_full[todo, :, lo:M - lo], geom, tests, final, max_tilt)
-        if out is None:
-            out = {key: np.zeros((n, *np.shape(v)[1:]), np.asarray(v).dtype)
-                   for key, v in res.items() if key not in ("alpha", "cdf", "ia", "ib")}
-            out["alpha"] = np.zeros((n, M))
-            out["cdf"] = np.zeros((n, M))
-            out["ia"] = np.zeros(n, np.int64)
-            out["ib"] = np.zeros(n, np.int64)
-            out["window"] = np.zeros(n, np.int64)
-            for key in res:
-                if key not in ("alpha", "cdf", "ia", "ib"):
-                    out[key][todo] = res[key]
+        first = ~reported[todo]
+        for key, v in res.items():
+            if key in ("alpha", "cdf", "ia", "ib"):
+                continue
+            if key not in out:
+                out[key] = np.zeros((n, *np.shape(v)[1:]), np.asarray(v).dtype)
+            out[key][todo[first]] = v[first]
+        reported[todo] = True
         passed = res["reason"] == 0
         take = todo[passed]
         for key, v in res.items():
@@ -1193,8 +1220,8 @@ def _best_window(S_full, geom: _Geometry, tests: _Tests, final: bool, max_tilt: 
         out["window"][take] = R
         # a smaller window can only help where clutter beyond the transition spoiled the
         # plateaus (or their estimate); the other failures do not depend on the window
-        todo = todo[np.isin(res["reason"], _WINDOW_DEPENDENT)]
-        if todo.size == 0 or k == len(windows) - 1:
+        todo = np.concatenate([wait, todo[np.isin(res["reason"], _WINDOW_DEPENDENT)]])
+        if todo.size == 0:
             break
     return out
 
@@ -1204,7 +1231,9 @@ def _two_pass(img, centres, angles, geom: _Geometry, tests: _Tests, max_tilt_pas
     """Pass 1 at the candidate along its normal; pass 2 at the centroid, corrected normal."""
     t = geom.t
     S = _sample(img, centres, angles, t, geom.lateral)
-    r1 = _best_window(S, geom, tests, final=False, max_tilt=max_tilt_pass1, windows=windows1)
+    limit1 = _window_limit(centres, angles, geom.lateral, None, img.shape)
+    r1 = _best_window(S, geom, tests, final=False, max_tilt=max_tilt_pass1, windows=windows1,
+                      limit=limit1)
     ok1 = r1["reason"] == 0
     reason = r1["reason"].copy()
     n = len(centres)
@@ -1215,7 +1244,9 @@ def _two_pass(img, centres, angles, geom: _Geometry, tests: _Tests, max_tilt_pas
     idx = np.flatnonzero(ok1)
     if idx.size:
         S2 = _sample(img, centre2[idx], angle2[idx], t, geom.lateral, r1["bend"][idx])
-        r2 = _best_window(S2, geom, tests, final=True, max_tilt=tests.max_tilt)
+        limit2 = _window_limit(centre2[idx], angle2[idx], geom.lateral, r1["bend"][idx],
+                               img.shape)
+        r2 = _best_window(S2, geom, tests, final=True, max_tilt=tests.max_tilt, limit=limit2)
         reason[idx] = r2["reason"]
         for key, v in r2.items():
             if key == "reason":
@@ -1507,19 +1538,18 @@ saturation
     if np.mean(S[0, :, -4:]) < np.mean(S[0, :, :4]):  # orient towards the brighter side
         angle += math.pi
         S = S[:, :, ::-1]
-    reach = geom.reach
     r1 = _analyse(S, g1, tests, final=False, max_tilt=np.deg2rad(35.0))
     if r1["reason"][0] != 0:
         return refuse(REASONS[int(r1["reason"][0])])
     nrm = np.array([math.sin(angle), math.cos(angle)])
     c = centre + r1["centroid"][0] * nrm
-    if not (reach <= c[0] <= H - 1 - reach and reach <= c[1] <= W - 1 - reach):
-        return refuse(REASONS[_BORDER])
     angle2 = angle - float(r1["tilt"][0])
     # pass 2 at the centroid, the window no longer than the drawn line
     windows = tuple(w for w in geom.windows if w <= max(half_line, geom.windows[-1]))
     S2 = _sample(img, c[None], np.array([angle2]), geom.t, geom.lateral, r1["bend"])
-    r2 = _best_window(S2, geom, tests, final=True, max_tilt=tests.max_tilt, windows=windows)
+    limit = _window_limit(c[None], np.array([angle2]), geom.lateral, r1["bend"], img.shape)
+    r2 = _best_window(S2, geom, tests, final=True, max_tilt=tests.max_tilt, windows=windows,
+                      limit=limit)
     if r2["reason"][0] != 0:
         return refuse(REASONS[int(r2["reason"][0])])
     r2["centre"] = c[None]
