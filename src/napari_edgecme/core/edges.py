@@ -1077,13 +1077,6 @@ def _analyse(S, geom: _Geometry, tests: _Tests, final: bool, max_tilt: float) ->
     flat = np.maximum(rms_l, rms_r)
     flat_lim = tests.flat_tol + 2.0 * sig_a
     fail(flat > flat_lim, _NOISY)
-    A = (S - c2[:, None, None]) / Cs[:, None, None]
-    if final and L > 1:
-        sig_line = tests.noise / Cs
-        line_l = np.sqrt((A**2 * pl[:, None]).sum(2) / np.maximum(n_left, 1)[:, None])
-        line_r = np.sqrt(((A - 1) ** 2 * pr[:, None]).sum(2) / np.maximum(n_right, 1)[:, None])
-        line_flat = np.maximum(line_l, line_r).max(1)
-        fail(line_flat > 2.0 * tests.flat_tol + 3.0 * sig_line, _NOISY)
     # monotone transition
     sup = (idx >= ia[:, None]) & (idx <= ib[:, None])
     a_s = alpha.copy()
@@ -1100,57 +1093,92 @@ def _analyse(S, geom: _Geometry, tests: _Tests, final: bool, max_tilt: float) ->
         inside = sup[:, :-g] & sup[:, g:] & (lo > 0.1) & (hi < 0.9)
         stall = inside & (hi - lo < np.maximum(0.015, 3.0 * sig_a)[:, None])
         fail(stall.any(1), _SECOND_EDGE)
-    # per-line centroids -> tilt of the true normal and straightness
+    sig_x = tests.noise / Cs * np.sqrt(width + 1.0)
+    straight_lim = tests.straight_tol + 3.0 * sig_x
+    tilt, bend, straight = np.zeros(n), np.zeros(n), np.zeros(n)
+    cdf = np.zeros((n, Mw))
+    centroid = np.zeros(n)
+    # the single lines are looked at only where the mean profile passed (most candidates
+    # in a photo fail above, and these are the (n, L, Mw) computations)
+    live = np.flatnonzero(reason == 0)
+    if live.size:
+        lv = _lines(S[live], alpha[live], c2[live], Cs[live], ia[live], ib[live], pl[live],
+                    pr[live], t, geom, tests, final)
+        tilt[live], bend[live] = lv["tilt"], lv["bend"]
+        straight[live] = lv["straight"] * straight_lim[live]
+        fail_live = np.zeros(n, bool)
+        fail_live[live] = lv["noisy"]
+        fail(fail_live, _NOISY)
+        fail(np.abs(tilt) > max_tilt, _NOT_STRAIGHT)
+        # a curved edge shifts the profile towards its concave side by about
+        # kappa * var_t / 2 (var_t: the PSF's variance along the tangent, at most
+        # max_blur^2 / 12 for a linear sweep); refuse edges where that exceeds half a pixel
+        fail(np.abs(bend) * geom.max_blur**2 / 12.0 > _CURVATURE_BIAS, _NOT_STRAIGHT)
+        if final:
+            fail(straight > straight_lim, _NOT_STRAIGHT)
+        # cleaned cumulative: 0 before the transition, 1 after, made monotone
+        a_c = np.clip(alpha[live], 0.0, 1.0)
+        a_c = np.where(idx < ia[live, None], 0.0, a_c)
+        a_c = np.where(idx > ib[live, None], 1.0, a_c)
+        up = np.maximum.accumulate(a_c, axis=1)
+        down = np.minimum.accumulate(a_c[:, ::-1], axis=1)[:, ::-1]
+        cdf[live] = 0.5 * (up + down)
+        mid = 0.5 * (t[:-1] + t[1:])
+        centroid[live] = (np.diff(cdf[live], axis=1) * mid).sum(1)
+    return {"reason": reason, "c1": c1, "c2": c2, "alpha": alpha, "cdf": cdf, "ia": ia,
+            "ib": ib, "centroid": centroid, "tilt": tilt, "bend": bend, "flat": flat / flat_lim,
+            "drop": drop / (tests.monotone_tol + 3.0 * sig_a),
+            "straight": straight / straight_lim, "width": width, "snr": C / tests.noise}
+
+
+def _lines(S, alpha, c2, Cs, ia, ib, pl, pr, t, geom: _Geometry, tests: _Tests,
+           final: bool) -> dict:
+    """The tests on the single parallel lines (profiles that passed the mean-profile tests).
+
+    Returns the tilt of the true normal (``atan`` of the slope of the lines' centroids
+    against their lateral offsets), the bend ``c`` of ``a + b s + c s^2``, the
+    straightness statistic (RMS of the centroids about the line, or the lines' shape
+    disagreement, whichever is worse, over its limit: > 1 fails) and whether a single
+    line's plateaus are too noisy (``final`` only).
+    """
+    n, L, Mw = S.shape
+    idx = np.arange(Mw)
+    A = (S - c2[:, None, None]) / Cs[:, None, None]
+    sup = (idx >= ia[:, None]) & (idx <= ib[:, None])
+    width = (ib - ia) * _FINE
+    noisy = np.zeros(n, bool)
+    if final and L > 1:
+        n_left, n_right = pl.sum(1), pr.sum(1)
+        line_l = np.sqrt((A**2 * pl[:, None]).sum(2) / np.maximum(n_left, 1)[:, None])
+        line_r = np.sqrt(((A - 1) ** 2 * pr[:, None]).sum(2) / np.maximum(n_right, 1)[:, None])
+        noisy = np.maximum(line_l, line_r).max(1) > (2.0 * tests.flat_tol
+                                                      + 3.0 * tests.noise / Cs)
+    # per-line centroids -> tilt of the true normal, curvature and straightness
     hi_t = t[np.clip(ib, 0, Mw - 1)]
     seg = sup[:, :-1] & sup[:, 1:]
     area = (0.5 * _FINE * (A[:, :, :-1] + A[:, :, 1:]) * seg[:, None]).sum(2)
     x_line = hi_t[:, None] - area  # (n, L)
     s = geom.lateral
-    bend = np.zeros(n)
+    slope, bend, straight = np.zeros(n), np.zeros(n), np.zeros(n)
     if L > 1 and np.ptp(s) > 0:
         sc = s - s.mean()
-        slope = (x_line - x_line.mean(1, keepdims=True)) @ sc / (sc @ sc)
-        resid = x_line - x_line.mean(1, keepdims=True) - slope[:, None] * sc[None]
+        centred = x_line - x_line.mean(1, keepdims=True)
+        slope = centred @ sc / (sc @ sc)
+        resid = centred - slope[:, None] * sc[None]
         straight = np.sqrt((resid**2).mean(1))
         if L > 3:  # x_j = a + b s_j + c s_j^2: c is half the edge's curvature
             q2 = sc**2 - (sc**2).mean()
             bend = resid @ q2 / (q2 @ q2)
-    else:
-        slope = np.zeros(n)
-        straight = np.zeros(n)
-    tilt = np.arctan(slope)
-    sig_x = tests.noise / Cs * np.sqrt(width + 1.0)
-    fail(np.abs(tilt) > max_tilt, _NOT_STRAIGHT)
-    # a curved edge shifts the profile towards its concave side by about
-    # kappa * var_t / 2 (var_t: the PSF's variance along the tangent, at most
-    # max_blur^2 / 12 for a linear sweep); refuse edges where that exceeds half a pixel
-    fail(np.abs(bend) * geom.max_blur**2 / 12.0 > _CURVATURE_BIAS, _NOT_STRAIGHT)
-    if final:
-        fail(straight > tests.straight_tol + 3.0 * sig_x, _NOT_STRAIGHT)
-        if L > 1:
-            # the lines must also agree in shape (a corner or a junction within the PSF's
-            # reach changes the transition of the outer lines, not only its position)
-            ext = (idx >= (ia - guard)[:, None]) & (idx <= (ib + guard)[:, None])
-            dev = np.sqrt(((A - alpha[:, None]) ** 2 * ext[:, None]).sum(2)
-                          / np.maximum(ext.sum(1), 1)[:, None]).max(1)
-            agree_lim = tests.flat_tol + 2.5 * tests.noise / Cs
-            fail(dev > agree_lim, _NOT_STRAIGHT)
-            straight = np.maximum(straight / (tests.straight_tol + 3.0 * sig_x),
-                                  dev / agree_lim) * (tests.straight_tol + 3.0 * sig_x)
-    # cleaned cumulative: 0 before the transition, 1 after, made monotone
-    a_c = np.clip(alpha, 0.0, 1.0)
-    a_c = np.where(idx < ia[:, None], 0.0, a_c)
-    a_c = np.where(idx > ib[:, None], 1.0, a_c)
-    up = np.maximum.accumulate(a_c, axis=1)
-    down = np.minimum.accumulate(a_c[:, ::-1], axis=1)[:, ::-1]
-    cdf = 0.5 * (up + down)
-    mid = 0.5 * (t[:-1] + t[1:])
-    centroid = (np.diff(cdf, axis=1) * mid).sum(1)
-    return {"reason": reason, "c1": c1, "c2": c2, "alpha": alpha, "cdf": cdf, "ia": ia,
-            "ib": ib, "centroid": centroid, "tilt": tilt, "bend": bend, "flat": flat / flat_lim,
-            "drop": drop / (tests.monotone_tol + 3.0 * sig_a),
-            "straight": straight / (tests.straight_tol + 3.0 * sig_x), "width": width,
-            "snr": C / tests.noise}
+    straight = straight / (tests.straight_tol + 3.0 * tests.noise / Cs * np.sqrt(width + 1.0))
+    if final and L > 1:
+        # the lines must also agree in shape (a corner or a junction within the PSF's
+        # reach changes the transition of the outer lines, not only its position)
+        guard = 2
+        ext = (idx >= (ia - guard)[:, None]) & (idx <= (ib + guard)[:, None])
+        dev = np.sqrt(((A - alpha[:, None]) ** 2 * ext[:, None]).sum(2)
+                      / np.maximum(ext.sum(1), 1)[:, None]).max(1)
+        straight = np.maximum(straight, dev / (tests.flat_tol + 2.5 * tests.noise / Cs))
+    return {"tilt": np.arctan(slope), "bend": bend, "straight": straight, "noisy": noisy}
 
 
 def _window_limit(centres, angles, lateral, bend, shape) -> np.ndarray:
