@@ -423,11 +423,12 @@ def test_normal_input_raises_no_warnings(one_case):
 
 def test_a_line_across_a_clean_edge_gives_its_profile(shaken):
     case, auto = shaken
-    # across the left side of the first disc, drawn 12 degrees off its normal, either way
+    # across the left side of the first disc, drawn 20 degrees off its normal, either way
     centre, radius = np.array([70.0, 68.0]), 38.0
-    direction = np.array([np.sin(np.radians(12)), -np.cos(np.radians(12))])
-    start = centre + (radius - 16) * direction
-    end = centre + (radius + 16) * direction
+    radial = np.array([np.sin(np.radians(10)), -np.cos(np.radians(10))])
+    crossing = centre + radius * radial
+    stroke = np.array([np.sin(np.radians(30)), -np.cos(np.radians(30))])
+    start, end = crossing - 17 * stroke, crossing + 17 * stroke
     for a, b in ((start, end), (end, start)):
         one = profile_along_line(case.blurred, a, b, max_blur=auto.max_blur)
         assert len(one) == 1, one.reason
@@ -441,6 +442,9 @@ def test_a_line_across_a_clean_edge_gives_its_profile(shaken):
         assert ncc > 0.9 and err < 0.5
     merged = EdgeProfiles.concatenate([auto, one])
     assert len(merged) == len(auto) + 1
+    stroke = np.array([np.sin(np.radians(60)), -np.cos(np.radians(60))])  # 50 degrees off
+    slanted = profile_along_line(case.blurred, crossing - 17 * stroke, crossing + 17 * stroke)
+    assert len(slanted) == 0 and "perpendicular" in slanted.reason
 
 
 @pytest.mark.parametrize("start, end, reason", [

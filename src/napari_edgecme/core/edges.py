@@ -1564,8 +1564,12 @@ saturation
     g1 = _Geometry(geom.max_blur, geom.plateau, half_line, (half_line,), geom.lateral, geom.gap)
     S = _sample(img, centre[None], np.array([angle]), g1.t, geom.lateral)
     if np.mean(S[0, :, -4:]) < np.mean(S[0, :, :4]):  # orient towards the brighter side
-        angle += math.pi
-        S = S[:, :, ::-1]
+        angle += math.pi  # normal and tangent turn round: reverse both sample axes
+        S = S[:, ::-1, ::-1]
+    off = _stroke_angle_error(img, p0, p1, float(np.clip(0.2 * max_blur, 1.0, 8.0)))
+    if off > math.radians(35.0):
+        return refuse(f"line crosses the edge {math.degrees(off):.0f} degrees off its normal; "
+                      f"draw it roughly perpendicular to the edge")
     r1 = _analyse(S, g1, tests, final=False, max_tilt=np.deg2rad(35.0))
     if r1["reason"][0] != 0:
         return refuse(REASONS[int(r1["reason"][0])])
@@ -1590,6 +1594,39 @@ saturation
                         prof["deriv"], offsets, quality, image_shape=img.shape,
                         max_blur=max_blur, stats=stats, curvature=r2["curvature"],
                         window=prof["window"])
+
+
+def _stroke_angle_error(img, p0, p1, sigma) -> float:
+    """Angle (radians, 0..pi/2) between a drawn line and the normal of the edge it crosses.
+
+    The edge normal is the magnitude-weighted mean gradient orientation (doubled angles)
+    within ``2 sigma`` of the strongest gradient along the line, at scale ``sigma``; 0 when
+    the line crosses no gradient at all (the other tests then say why).
+    """
+    H, W = img.shape
+    pad = math.ceil(3 * sigma) + 2
+    r0 = max(0, int(min(p0[0], p1[0])) - pad)
+    r1 = min(H, int(max(p0[0], p1[0])) + pad + 1)
+    c0 = max(0, int(min(p0[1], p1[1])) - pad)
+    c1 = min(W, int(max(p0[1], p1[1])) + pad + 1)
+    crop = ndimage.gaussian_filter(img[r0:r1, c0:c1].astype(np.float64), sigma, mode="nearest")
+    if min(crop.shape) < 2:
+        return 0.0
+    gr, gc = np.gradient(crop)
+    n = max(2, int(2 * np.hypot(*(p1 - p0))))
+    u = np.linspace(0.0, 1.0, n)
+    pts = [p0[0] + u * (p1[0] - p0[0]) - r0, p0[1] + u * (p1[1] - p0[1]) - c0]
+    vr = ndimage.map_coordinates(gr, pts, order=1, mode="nearest")
+    vc = ndimage.map_coordinates(gc, pts, order=1, mode="nearest")
+    mag = np.hypot(vr, vc)
+    if not mag.max() > 0:
+        return 0.0
+    near = np.abs(u - u[np.argmax(mag)]) * np.hypot(*(p1 - p0)) <= 2 * sigma
+    doubled = np.sum(mag[near] * np.exp(2j * np.arctan2(vr[near], vc[near])))
+    normal = 0.5 * np.angle(doubled)
+    line = math.atan2(p1[0] - p0[0], p1[1] - p0[1])
+    diff = abs(math.remainder(line - normal, math.pi))
+    return float(diff)
 
 
 # ---------------------------------------------------------------------------------------
