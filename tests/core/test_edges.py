@@ -504,6 +504,9 @@ def test_subset_select_and_concatenate(one_case):
     small = EdgeProfiles(prof.centroids[:2], prof.normal_angle[:2], prof.c1[:2], prof.c2[:2],
                          prof.profiles[:2, 2:-2], prof.derivatives[:2, 2:-2], prof.offsets[2:-2],
                          prof.quality[:2])
+    with pytest.raises(ValueError, match=r"derivatives must have shape \(2, "):
+        EdgeProfiles(small.centroids, small.normal_angle, small.c1, small.c2, small.profiles,
+                     small.derivatives[:, 1:], small.offsets, small.quality)
     both = EdgeProfiles.concatenate([prof, small])
     assert np.array_equal(both.offsets, prof.offsets)
     assert np.allclose(both.derivatives[-2:, 2:-2], small.derivatives)

@@ -177,9 +177,8 @@ class EdgeProfiles:
                                                                        "curvature")
         full = float(np.max(np.abs(self.offsets))) if N else 0.0
         self.window = np.full(n, full) if window is None else _vector(window, n, "window")
-        self.profiles = np.asarray(profiles, dtype=float).reshape(n, N) if n else np.zeros((0, N))
-        self.derivatives = (np.asarray(derivatives, dtype=float).reshape(n, N) if n
-                            else np.zeros((0, N)))
+        self.profiles = _matrix(profiles, n, N, "profiles")
+        self.derivatives = _matrix(derivatives, n, N, "derivatives")
         self.reason = str(reason) if n == 0 else ""
         if n == 0 and not self.reason:
             self.reason = "no edge profiles"
@@ -1640,6 +1639,16 @@ def _point(p, name) -> np.ndarray:
         raise ValueError(f"{name} must be two numbers (row, col); got {p!r}") from None
     if arr.shape != (2,) or not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be two finite numbers (row, col); got {p!r}")
+    return arr
+
+
+def _matrix(values, n, N, name) -> np.ndarray:
+    if n == 0:
+        return np.zeros((0, N))
+    arr = np.asarray(values, dtype=float)
+    if arr.shape != (n, N):
+        raise ValueError(f"{name} must have shape ({n}, {N}) (profiles x offsets); "
+                         f"got {arr.shape}")
     return arr
 
 
