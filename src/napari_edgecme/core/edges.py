@@ -662,10 +662,15 @@ class _Geometry:
 def _geometry(max_blur: float, n_lines: int, line_spread, half_length=None) -> _Geometry:
     plateau = 3
     margin = max(plateau, round(_PLATEAU_FRACTION * max_blur))
-    half = (math.ceil(max_blur - 1e-9) + margin + 1) if half_length is None else int(half_length)
     smallest = 2 * plateau + 2
+    if half_length is None:
+        # at least the smallest window: below ~3 px of blur the plateaus set the length
+        half = max(smallest, math.ceil(max_blur - 1e-9) + margin + 1)
+    else:
+        half = int(half_length)
     fractions = (1.0, 0.8, 0.64, 0.5, 0.4, 0.3)
-    windows = sorted({max(smallest, min(half, round(half * f))) for f in fractions},
+    # no window longer than the samples (a hand-drawn line may be shorter than `smallest`)
+    windows = sorted({min(half, max(smallest, round(half * f))) for f in fractions},
                      reverse=True)
     spread = max(2.0, 0.4 * max_blur) if line_spread is None else float(line_spread)
     lateral = (np.linspace(-spread, spread, n_lines) if n_lines > 1 else np.zeros(1))

@@ -12,17 +12,17 @@ needs one ``Q w`` product per iteration, no line search once the Lipschitz const
 is known (estimated by power iteration), warm-starts from the previous scale's
 estimate, and its iterates are non-negative by construction.
 
-Why FISTA: ``benchmarks/bench_lasso.py`` times it against projected coordinate
-descent on the explicit Gram matrix (one ``Q w`` product per pose to build, O(n^2)
-memory) and ADMM (``w = z``, ``z >= 0``; the ``w`` step by warm-started CG) on the MDF
-problem of the finest scale. On 256x256 with an in-plane grid of 2601 poses (measured
-2026-11-22, median of 1, 2-core shared machine) FISTA reached a relative objective gap
-of 1e-2 / 1e-3 / 1e-4 in 0.27 / 0.88 / 1.25 s; coordinate descent (sweeps in Python) needed 1.6 s just to
-build the Gram and reached 1e-2 at 1.8 s, 1e-3 not within 60 sweeps (neighbouring
-poses are nearly collinear); ADMM reached 1e-2 at 2.0 s and 1e-3 not within 400
-iterations. The engine stops FISTA at ``max_iter=200`` (a gap of about 2e-2 on that
-problem): each MDF update is followed by a latent update that moves the problem more
-than that.
+Why FISTA: ``benchmarks/bench_lasso.py`` times it against projected coordinate descent
+on the explicit Gram matrix (one ``Q w`` product per pose to build, O(n^2) memory) and
+ADMM (``w = z``, ``z >= 0``; the ``w`` step by warm-started CG) on the MDF problem of
+the finest scale. On 256x256 with an in-plane grid of 2601 poses (measured 2026-11-22,
+median of 1, 2-core shared machine) FISTA reached a relative objective gap of 1e-2 /
+1e-3 / 1e-4 in 0.27 / 0.88 / 1.25 s; coordinate descent (sweeps in Python) needed 1.6
+s just to build the Gram and reached 1e-2 at 1.8 s, 1e-3 not within 60 sweeps
+(neighbouring poses are nearly collinear); ADMM reached 1e-2 at 2.0 s and 1e-3 not
+within 400 iterations. The engine stops FISTA at ``max_iter=200`` (a gap of about 2e-2
+on that problem): each MDF update is followed by a latent update that moves the
+problem more than that.
 """
 
 from __future__ import annotations
