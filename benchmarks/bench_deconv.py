@@ -13,8 +13,9 @@ Prints Markdown tables:
    scale, the same pixels restored with the true context around them;
 4. time and peak memory of an 800x800 gray and a 12-megapixel (4000x3000) RGB
    hyper-Laplacian deconvolution, each measured in a fresh subprocess: wall time,
-   CPU time (user + system) and peak resident memory (``resource.getrusage``
-   ``ru_maxrss`` of that subprocess, which includes the interpreter and libraries).
+   CPU time (user + system) and peak resident memory of that subprocess (``VmHWM``
+   of ``/proc/self/status``, which includes the interpreter and libraries; not
+   ``ru_maxrss``, which Linux carries over from the parent across fork and exec).
    Medians over ``--repeat`` runs. The machine is shared: CPU time is the steadier
    figure; the load average is printed with the results.
 
@@ -38,6 +39,7 @@ import time
 
 import numpy as np
 
+from napari_edgecme._bench import _peak_rss_mib
 from napari_edgecme.core import deconv
 from napari_edgecme.core.camera import Intrinsics
 from napari_edgecme.core.metrics import aligned_psnr, psnr
@@ -257,7 +259,7 @@ def measure(spec: dict) -> dict:
     out, wall, cpu = timed(deconv.deconvolve, blurred, motion, callback=callback,
                            **spec.get("params", {}))
     result = {"wall": wall, "cpu": cpu, "records": len(gaps), "max_gap": max(gaps),
-              "maxrss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20,
+              "maxrss_gib": _peak_rss_mib() / 1024,
               "psf": deconv._psf_extent(motion), "stride": deconv._auto_stride(motion)}
     if spec["score"]:
         sharp = np.load(spec["stem"] + "-sharp.npy")
