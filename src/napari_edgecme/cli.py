@@ -198,17 +198,25 @@ class _Console:
         if self.bar is not None:
             self.bar.update(record)
 
-    def run(self, generator):
-        """Drive an engine ``iter_*`` generator with the progress bar; return its result."""
+    @contextlib.contextmanager
+    def stage(self):
+        """``with console.stage() as callback:`` a stage reporting through ``callback``.
+
+        The bar ends its line when the stage ends, and is wiped if it raises.
+        """
         try:
-            result = drive(generator, self.progress)
+            yield self.progress
         except BaseException:
             if self.bar is not None:
                 self.bar.clear()
             raise
         if self.bar is not None:
             self.bar.finish()
-        return result
+
+    def run(self, generator):
+        """Drive an engine ``iter_*`` generator with the progress bar; return its result."""
+        with self.stage() as callback:
+            return drive(generator, callback)
 
     def showwarning(self, message, category, filename, lineno, file=None, line=None):
         """Replacement for :func:`warnings.showwarning`: one ``edgecme: warning:`` line."""
@@ -535,7 +543,8 @@ def cmd_synth(args, console: _Console) -> int:
     path_poses = synth.random_trajectory(args.model, intrinsics, args.extent,
                                          n_samples=SYNTH_SAMPLES, rng=rng)
     truth = synth.densify_path(path_poses, args.model, intrinsics)
-    blurred = synth.render_blur(sharp, truth)
+    with console.stage() as callback:
+        blurred = synth.render_blur(sharp, truth, callback=callback)
     if args.noise > 0:
         blurred = synth.add_noise(blurred, args.noise, rng)
     blurred = np.clip(blurred, 0, 1)
