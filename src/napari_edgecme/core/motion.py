@@ -128,6 +128,9 @@ class CameraMotion:
         total = w.sum()
         if not total > 0:
             raise ValueError("weights must not all be zero")
+        if not np.isfinite(total):  # finite weights whose sum overflows (e.g. 1e308 twice)
+            w = w / w.max()
+            total = w.sum()
         self.poses = poses
         # normalise, but leave weights that already sum to one bit-exact (motion files
         # round-trip exactly)
@@ -316,9 +319,10 @@ class CameraMotion:
                 f"not an edgecme motion file: 'format' is {data.get('format')!r}, "
                 f"expected {MOTION_FORMAT!r}"
             )
-        if data.get("version") != MOTION_VERSION:
+        version = data.get("version")
+        if isinstance(version, bool) or version != MOTION_VERSION:
             raise ValueError(
-                f"unsupported motion file version {data.get('version')!r}; "
+                f"unsupported motion file version {version!r}; "
                 f"this program reads version {MOTION_VERSION}"
             )
         for key in ("model", "intrinsics", "poses", "weights"):
@@ -335,7 +339,8 @@ class CameraMotion:
                                     tuple(intr["image_shape"]))
             poses = np.asarray(data["poses"], dtype=float)
             weights = np.asarray(data["weights"], dtype=float)
-        except (TypeError, ValueError) as err:
+        except (TypeError, ValueError, OverflowError) as err:
+            # OverflowError: an integer too large for a float (JSON allows 1000 digits)
             raise ValueError(f"motion file is malformed: {_first_line(err)}") from None
         model = data["model"]
         if poses.size == 0:
@@ -365,6 +370,9 @@ class CameraMotion:
         except json.JSONDecodeError as err:
             raise ValueError(f"motion file {path} is not valid JSON: {err.msg} "
                              f"(line {err.lineno})") from None
+        except (ValueError, RecursionError) as err:  # a number of > 4300 digits, deep nesting
+            raise ValueError(f"motion file {path} is not valid JSON: "
+                             f"{_first_line(err)}") from None
         try:
             return cls.from_dict(data)
         except ValueError as err:
