@@ -74,7 +74,8 @@ def as_float_image(image, name: str = "image", *, allow_rgb: bool = False,
     expected = "(rows, cols) or (rows, cols, 3)" if allow_rgb else "(rows, cols)"
     ok_ndim = arr.ndim == 2 or (allow_rgb and arr.ndim == 3 and arr.shape[2] == 3)
     if not ok_ndim:
-        raise ValueError(f"{name} must have shape {expected}; got shape {arr.shape}")
+        raise ValueError(f"{name} must have shape {expected}; got shape {arr.shape}"
+                         f"{_shape_hint(arr.shape, allow_rgb, name)}")
     if arr.shape[0] < min_size or arr.shape[1] < min_size:
         raise ValueError(
             f"{name} must be at least {min_size}x{min_size} pixels; got {arr.shape[0]}x{arr.shape[1]}"
@@ -100,6 +101,21 @@ def as_float_image(image, name: str = "image", *, allow_rgb: bool = False,
                 f"[{lo:g}, {hi:g}] (divide 8-bit data by 255, 16-bit data by 65535)"
             )
     return out
+
+
+def _shape_hint(shape, allow_rgb: bool, name: str) -> str:
+    """What to do about an image of a refused ``shape``, as a parenthesised suffix."""
+    if len(shape) == 3 and shape[2] == 1:
+        return f" (one channel: pass {name}[..., 0])"
+    if len(shape) == 3 and shape[2] in (2, 4):
+        kind = "gray+alpha" if shape[2] == 2 else "RGBA"
+        keep = "[..., 0]" if shape[2] == 2 or not allow_rgb else "[..., :3]"
+        return f" ({kind}: drop the alpha channel, {name}{keep})"
+    if len(shape) == 3 and shape[2] == 3 and not allow_rgb:
+        return " (RGB: convert to gray first)"
+    if len(shape) >= 3:
+        return " (a stack or volume: pass one 2-D plane at a time)"
+    return ""
 
 
 def as_rng(rng) -> np.random.Generator:

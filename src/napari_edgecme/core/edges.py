@@ -698,8 +698,9 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
         Largest blur extent (pixels) expected: the side of the largest local PSF's
         bounding box. It sets the Canny scale, the half-length of the profiles
         ``R = max(8, ceil(max_blur) + max(3, round(0.3 max_blur)) + 1)`` (``offsets`` run
-        from ``-R`` to ``R``; 8 px leave room for two flat plateaus), the widest transition accepted (``sqrt(2) max_blur + 1``: a
-        bounding box's diagonal) and the span of the parallel lines.
+        from ``-R`` to ``R``; 8 px leave room for two flat plateaus), the widest
+        transition accepted (``sqrt(2) max_blur + 1``: a bounding box's diagonal) and the
+        span of the parallel lines.
     rng : None, int or numpy.random.Generator
         Used only when more than ``max_candidates`` candidates are found, to pick a
         random subset of them. Same input and seed give identical profiles.
