@@ -313,6 +313,9 @@ def _max_blur(value: float | None, shape) -> float:
     half = min(shape[:2]) / 2
     if value is None:
         value = _estimate.default_max_blur(shape)
+        if half <= 1:  # no --max-blur (>= 1 px, < half the side) would do
+            raise CLIError(f"image is {shape[0]}x{shape[1]} px: too small to look for a "
+                           "blur in (at least 3x3 px; motion estimation needs 8x8)")
         if value >= half:
             raise CLIError(f"image is {shape[0]}x{shape[1]} px: too small for the default "
                            f"--max-blur of {value:g} px; pass a --max-blur below {half:g}")

@@ -44,6 +44,8 @@ def read_image(path) -> np.ndarray:
     if path.is_dir():
         raise ValueError(f"expected an image file, got a directory: {path}")
     suffix = path.suffix.lower()
+    if path.stat().st_size == 0:
+        raise ValueError(f"cannot read image {path}: the file is empty (0 bytes)")
     try:
         with warnings.catch_warnings():
             # imageio probes its legacy plugins (DICOM, ...) on unknown data and warns
@@ -58,7 +60,10 @@ def read_image(path) -> np.ndarray:
 
                 arr = iio.imread(path)
     except Exception as err:  # any decoder failure is a bad file for the user
-        raise ValueError(f"cannot read image {path}: {_first_line(err)}") from None
+        why = _first_line(err)
+        if "Could not find a backend" in why:  # imageio's words for "no decoder knows it"
+            why = "not an image file in a format that can be read (PNG, JPEG, TIFF, BMP, ...)"
+        raise ValueError(f"cannot read image {path}: {why}") from None
     arr = np.asarray(arr)
     if arr.size == 0 or arr.ndim < 2:
         raise ValueError(f"{path} holds no image data (shape {arr.shape})")
