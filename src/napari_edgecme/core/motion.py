@@ -125,7 +125,8 @@ class CameraMotion:
             raise ValueError("weights must be finite; got NaN or inf")
         if np.any(w < 0):
             raise ValueError(f"weights must be >= 0; got minimum {w.min():g}")
-        total = w.sum()
+        with np.errstate(over="ignore"):
+            total = w.sum()
         if not total > 0:
             raise ValueError("weights must not all be zero")
         if not np.isfinite(total):  # finite weights whose sum overflows (e.g. 1e308 twice)
