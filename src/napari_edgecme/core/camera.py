@@ -185,7 +185,8 @@ def _log_rotation(R: np.ndarray) -> np.ndarray:
     angle = np.arccos(cos)
     v = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
     small = angle < 1e-6
-    scale = np.where(small, 0.5 + angle**2 / 12.0, angle / (2.0 * np.sin(np.where(small, 1, angle))))
+    scale = np.where(small, 0.5 + angle**2 / 12.0,
+                     angle / (2.0 * np.sin(np.where(small, 1, angle))))
     return v * scale[:, None]
 
 

@@ -411,7 +411,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             ep_images = None
             if work_profiles is not None and (method == "ep" or lambda_ip > 0):
                 ep_images = _edge_images(level, work_profiles, s, gain)
-            lam_f = lambda_f * s ** -_LAMBDA_F_SCALING  # coarse levels: sharper edges, larger weight
+            # coarse levels: sharper edges, larger weight
+            lam_f = lambda_f * s ** -_LAMBDA_F_SCALING
             for it in range(n_iter):
                 if method != "ep":
                     latent = l0_latent(level.blurred, level.motion(weights), lam_f)

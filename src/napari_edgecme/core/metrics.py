@@ -25,7 +25,8 @@ def psnr(result, reference, data_range: float = 1.0) -> float:
     a = np.asarray(result, np.float64)
     b = np.asarray(reference, np.float64)
     if a.shape != b.shape:
-        raise ValueError(f"result and reference must have the same shape; got {a.shape} and {b.shape}")
+        raise ValueError(f"result and reference must have the same shape; got {a.shape} and "
+                         f"{b.shape}")
     mse = np.mean((a - b) ** 2)
     return float(10 * np.log10(data_range**2 / max(mse, 1e-20)))
 

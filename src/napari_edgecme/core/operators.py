@@ -312,7 +312,10 @@ class PatchGrid:
         return p.reshape((*arr.shape[:-2], self.n_patches, *self.patch_shape))
 
     def output_patches(self, arr) -> np.ndarray:
-        """Each patch's blur footprint ``C_r arr`` (patch grown by the PSF), (..., n_patches, Q0, Q1)."""
+        """Each patch's blur footprint ``C_r arr`` (patch grown by the PSF).
+
+        Shape (..., n_patches, Q0, Q1).
+        """
         p = self._patches(arr, self.half, self.out_shape)
         return p.reshape((*arr.shape[:-2], self.n_patches, *self.out_shape))
 
@@ -365,7 +368,9 @@ def _psf_size_at_centres(model, intrinsics, poses, shape, origin, stride, overla
 
 
 class EfficientFilterFlow(LinearOperator):
-    """EFF blur (Hirsch et al. 2010), linear in the image: ``f -> sum_r C_r^T (k_r * (omega_r C_r f))``.
+    """EFF blur (Hirsch et al. 2010), linear in the image.
+
+    ``f -> sum_r C_r^T (k_r * (omega_r C_r f))``.
 
     Parameters
     ----------
@@ -411,7 +416,9 @@ class EfficientFilterFlow(LinearOperator):
 
 
 class EfficientFilterFlowWeights(LinearOperator):
-    """EFF blur of a fixed image, linear in the MDF weights: ``w -> sum_r C_r^T ((B_r w) * omega_r C_r f)``.
+    """EFF blur of a fixed image, linear in the MDF weights.
+
+    ``w -> sum_r C_r^T ((B_r w) * omega_r C_r f)``.
 
     Parameters
     ----------

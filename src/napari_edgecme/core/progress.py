@@ -24,7 +24,7 @@ import numpy as np
 __all__ = ["Cancelled", "Progress", "StopRequested", "drive"]
 
 
-class StopRequested(Exception):  # noqa: N818 - a request, not an error
+class StopRequested(Exception):
     """Thrown into a running generator when its caller asks it to stop early."""
 
 

@@ -235,8 +235,8 @@ def edge_scene(shape=(256, 256), rng=None) -> np.ndarray:
                 k = rng.integers(3, 7)
                 phase = rng.uniform(0, 2 * np.pi)
                 ang = phase + 2 * np.pi * np.arange(k) / k
-                rr, cc_ = polygon(cr + 1.15 * radius * np.sin(ang), cc + 1.15 * radius * np.cos(ang),
-                                  shape=(rows, cols))
+                rr, cc_ = polygon(cr + 1.15 * radius * np.sin(ang),
+                                  cc + 1.15 * radius * np.cos(ang), shape=(rows, cols))
             img[rr, cc_] = level
     return img
 
