@@ -73,7 +73,7 @@ def test_rescale_scales_translations_and_keeps_angles(cam):
 
 
 def test_recentred_moves_the_centroid_to_the_identity(cam):
-    poses = random_trajectory("rotation", cam, 9, 16, rng=2) + [0.001, -0.002, 0.0005]
+    poses = random_trajectory("rotation", cam, 9, 16, rng=2) + np.array([0.001, -0.002, 0.0005])
     m = densify_path(poses, "rotation", cam)
     c = m.recentred()
     assert np.abs(c.centroid_pose()).max() < 1e-6
