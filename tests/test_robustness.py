@@ -158,6 +158,8 @@ def test_a_constant_image_has_no_edges_each_method_says_so():
                                          r"method 'xu'"):
         est = estimate_motion(flat, "xu+ep", "translation", max_blur=5, **FAST)
     assert est.info.method == "xu" and "fell back" in est.info.message
+    with pytest.warns(UserWarning, match="the image is constant"):
+        estimate_motion(flat, "xu", "translation", max_blur=5, **FAST)
     restored = deconvolve(flat, est.motion, "wiener")
     assert np.all(np.isfinite(restored))
 

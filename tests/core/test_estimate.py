@@ -116,6 +116,10 @@ def test_callback_stopping_before_any_result_raises_cancelled(uniform_case):
     (dict(lambda_f=0), "lambda_f"),
     (dict(n_iter=0), "n_iter"),
     (dict(focal_px=float("nan")), "focal_px"),
+    (dict(n_iter=10**12), "n_iter must be <= 1000"),
+    (dict(profiles="edges.json"), "profiles must be None or EdgeProfiles; got str"),
+    (dict(preview="yes"), "preview must be True or False"),
+    (dict(rng="abc"), "rng must be None, an int seed or a numpy Generator"),
 ])
 def test_bad_parameters_are_named(uniform_case, kwargs, match):
     args = dict(method="xu", model="translation", max_blur=9)
@@ -131,3 +135,21 @@ def test_bad_images_are_refused():
         estimate_motion(np.zeros((4, 4)), "xu", "translation", max_blur=1)
     with pytest.raises(ValueError, match="shape"):
         estimate_motion(np.zeros((8, 8, 8, 8)), "xu", "translation", max_blur=3)
+
+
+def test_the_finest_scale_alternates_at_most_three_times(uniform_case):
+    # more alternations there drift (estimate.py, _FINEST_UPDATES); coarser scales run n_iter
+    est = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9, n_iter=5)
+    updates = [len(record.costs) for record in est.info.scales]
+    assert updates[:-1] == [5] * (len(updates) - 1) and updates[-1] == 3
+
+
+def test_deblur_checks_the_deconvolution_before_estimating(uniform_case):
+    records = []
+    for kwargs, match in [(dict(deconvolution="lucy"), "deconvolution must be one of"),
+                          (dict(deconv_params={"lamda": 1}), "unknown parameter 'lamda'"),
+                          (dict(deconv_params=[1]), "deconv_params must be a dict")]:
+        with pytest.raises(ValueError, match=match):
+            deblur(uniform_case.blurred, "xu", "translation", max_blur=9,
+                   callback=records.append, **kwargs)
+    assert records == []  # refused before the first progress record

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from ._validation import as_float_image, check_choice, check_positive
+from ._validation import as_float_image, as_rng, check_choice, check_positive
 from .camera import MODELS, Intrinsics, PoseGrid, displacements, pose_grid
 from .deconv_prior import grad
 from .lasso import nonneg_lasso
@@ -79,6 +79,13 @@ _ROLL_FROM_BLUR = 12.0  # levels whose blur (px) is below this keep theta_z = 0
 _CLUSTER_FLOOR = 0.1  # clusters lighter than this share of the heaviest one are dropped
 _SALIENT_START = 0.1  # share of latent gradients used by the first MDF update of a scale
 _WEIGHT_FLOOR = 1.0 / 20.0  # drop weights below this fraction of the largest (Whyte et al.)
+#: Alternations at the finest scale (at most; Xu, Xu+Ep). Measured on 16 synthetic
+#: cases (the bench set and 8 others): more alternations there let the L0 latent and
+#: the MDF drift from the truth (PSF NCC falls by up to 0.17 on some photos) and cost
+#: the most time; 3 instead of 5 gave the same mean PSNR (-0.08 dB / +0.08 dB on the
+#: two sets), a higher mean PSF NCC and 30 % less CPU time.
+_FINEST_UPDATES = 3
+_MAX_ITER = 1000  # cap on n_iter (alternations per scale)
 
 
 @dataclass
@@ -306,7 +313,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     lambda_w, lambda_ip, lambda_f : float, optional
         Weights of Eqs. 19-22 (see :data:`DEFAULTS`); ``lambda_ip = 0`` is Xu.
     n_iter : int, optional
-        Alternations per scale.
+        Alternations per scale (at most 3 at the finest scale, where more drift; see
+        ``_FINEST_UPDATES``).
     max_side : int, optional
         Images larger than this are estimated on a downscaled copy (the motion is
         returned for the full image).
@@ -340,12 +348,17 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     lambda_w = _check_lambda(lambda_w, "lambda_w", DEFAULTS["lambda_w"], allow_zero=True)
     lambda_ip = _check_lambda(lambda_ip, "lambda_ip", DEFAULTS["lambda_ip"], allow_zero=True)
     lambda_f = _check_lambda(lambda_f, "lambda_f", DEFAULTS["lambda_f"])
-    n_iter = DEFAULTS["n_iter"] if n_iter is None else check_positive(n_iter, "n_iter",
-                                                                      integer=True)
+    n_iter = DEFAULTS["n_iter"] if n_iter is None else check_positive(
+        n_iter, "n_iter", integer=True, maximum=_MAX_ITER)
     max_side = DEFAULTS["max_side"] if max_side is None else check_positive(
         max_side, "max_side", integer=True)
     if focal_px is not None:
         focal_px = check_positive(focal_px, "focal_px")
+    if profiles is not None and not hasattr(profiles, "rescaled"):
+        raise ValueError(f"profiles must be None or EdgeProfiles; got {type(profiles).__name__}")
+    if not isinstance(preview, bool | np.bool_):
+        raise ValueError(f"preview must be True or False; got {preview!r}")
+    rng = as_rng(rng)
     if method == "xu":
         lambda_ip = 0.0
     t_start = time.perf_counter()
@@ -356,6 +369,9 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     work_shape = tuple(max(8, round(s * work_scale)) for s in shape)
     work_raw = _resize(gray, work_shape)
     offset, gain = _contrast_gain(work_raw)
+    if method == "xu" and float(np.ptp(work_raw)) < 1e-6:  # ep, xu+ep say it with profiles
+        warnings.warn("the image is constant: there is no blur to estimate (returning "
+                      "the best guess, a small blob)", UserWarning, stacklevel=2)
     work = ((work_raw - offset) * gain).astype(work_raw.dtype)
     intr_work = intr_full.rescaled(work_shape)
     blur_work = max_blur * work_scale
@@ -365,7 +381,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     scales = _pyramid(work_shape, blur_work, DEFAULTS["coarsest_blur"])
     if method == "ep":  # no latent to alternate with: re-solve once after the clean-up
         n_iter = min(n_iter, _EP_UPDATES_PER_SCALE)
-    total = len(scales) * n_iter + (1 if method != "xu" else 0)
+    finest_iter = n_iter if method == "ep" else min(n_iter, _FINEST_UPDATES)
+    total = (len(scales) - 1) * n_iter + finest_iter + (1 if method != "xu" else 0)
     step = 0
     yield Progress("estimate", step, total, "preparing", n_scales=len(scales))
     work_profiles = None
@@ -413,20 +430,22 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 ep_images = _edge_images(level, work_profiles, s, gain)
             # coarse levels: sharper edges, larger weight
             lam_f = lambda_f * s ** -_LAMBDA_F_SCALING
-            for it in range(n_iter):
+            finest = li == len(scales) - 1
+            level_iter = min(n_iter, _FINEST_UPDATES) if finest and method != "ep" else n_iter
+            for it in range(level_iter):
                 if method != "ep":
                     latent = l0_latent(level.blurred, level.motion(weights), lam_f)
                     lam_f = max(lam_f / 1.1, 1e-4)
                 weights, cost, n_lasso = _mdf_step(level, weights, active, latent, ep_images,
                                                    lambda_w, lambda_ip, method,
-                                                   salient=_SALIENT_START * 1.1 ** it)
+                                                   salient=_SALIENT_START * 1.1 ** min(it, 24))
                 motion = level.motion(weights)
                 record.costs.append(cost)
                 record.active_poses.append(int(active.sum()))
                 record.lasso_iterations.append(n_lasso)
                 step += 1
                 yield Progress("estimate", step, total,
-                               f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{n_iter}",
+                               f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{level_iter}",
                                scale=li + 1, n_scales=len(scales), iteration=it + 1,
                                cost=cost, preview=latent.copy() if preview and latent is not None
                                else None)
@@ -564,8 +583,14 @@ def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: floa
     restored : ndarray, float32 in [0, 1], shaped like ``image``
     estimate : MotionEstimate
     """
-    from .deconv import deconvolve
+    from .deconv import METHODS as DECONV_METHODS
+    from .deconv import _check_params, deconvolve
 
+    # the deconvolution's own checks, before minutes of estimation
+    deconvolution = check_choice(deconvolution, "deconvolution", DECONV_METHODS)
+    if deconv_params is not None and not isinstance(deconv_params, dict):
+        raise ValueError(f"deconv_params must be a dict; got {type(deconv_params).__name__}")
+    _check_params(deconvolution, dict(deconv_params or {}))
     estimate = estimate_motion(image, method, model, max_blur, focal_px, callback=callback,
                                **params)
     restored = deconvolve(image, estimate.motion, deconvolution, callback=callback,
