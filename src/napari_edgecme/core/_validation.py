@@ -78,7 +78,8 @@ def as_float_image(image, name: str = "image", *, allow_rgb: bool = False,
                          f"{_shape_hint(arr.shape, allow_rgb, name)}")
     if arr.shape[0] < min_size or arr.shape[1] < min_size:
         raise ValueError(
-            f"{name} must be at least {min_size}x{min_size} pixels; got {arr.shape[0]}x{arr.shape[1]}"
+            f"{name} must be at least {min_size}x{min_size} pixels; got "
+            f"{arr.shape[0]}x{arr.shape[1]}"
         )
     dtype = float_dtype(arr.dtype)
     if arr.dtype == np.bool_:
@@ -125,7 +126,8 @@ def as_rng(rng) -> np.random.Generator:
     try:
         return np.random.default_rng(rng)
     except (TypeError, ValueError) as err:
-        raise ValueError(f"rng must be None, an int seed or a numpy Generator; got {rng!r}") from err
+        raise ValueError(f"rng must be None, an int seed or a numpy Generator; "
+                         f"got {rng!r}") from err
 
 
 def check_choice(value, name: str, choices) -> str:

@@ -87,7 +87,7 @@ def exif_focal_35mm(path) -> float | None:
     return value if value > 0 else None
 
 
-class atomic_path:  # noqa: N801 - used like a function in a with statement
+class atomic_path:
     """Context manager giving a temporary path next to ``path``, renamed into place on success.
 
     On an exception (or KeyboardInterrupt) the temporary file is removed and ``path``

@@ -66,7 +66,8 @@ def psf_matrix(disp: np.ndarray, size: int, dtype=np.float64) -> sp.csr_matrix:
     half = (size - 1) // 2
     need = psf_size_for(disp)
     if size % 2 == 0 or size < need:
-        raise ValueError(f"PSF size must be odd and at least {need} to hold this motion; got {size}")
+        raise ValueError(f"PSF size must be odd and at least {need} to hold this motion; "
+                         f"got {size}")
     col = disp[..., 0] + half
     row = disp[..., 1] + half
     c0 = np.floor(col).astype(np.int64)
@@ -142,7 +143,7 @@ class CameraMotion:
     # -- construction ---------------------------------------------------------------
     @classmethod
     def from_trajectory(cls, poses, model: str, intrinsics: Intrinsics) -> CameraMotion:
-        """A motion that spends equal time at each of ``poses`` (a gyroscope or ground-truth path)."""
+        """A motion that spends equal time at each of ``poses`` (a gyroscope or true path)."""
         poses = check_poses(poses, check_choice(model, "model", MODELS))
         return cls(model, intrinsics, poses, np.ones(len(poses)))
 
@@ -166,7 +167,7 @@ class CameraMotion:
         return homographies(self.model, self.intrinsics, self.poses)
 
     def displacements(self, points) -> np.ndarray:
-        """Displacements ``(dx, dy)`` of ``points`` (n, 2) ``(row, col)`` per pose, (n, n_poses, 2)."""
+        """Displacements ``(dx, dy)`` of ``points`` (n, 2) ``(row, col)``: (n, n_poses, 2)."""
         return displacements(self.model, self.intrinsics, self.poses, _check_points(points))
 
     def blur_extent(self, points=None) -> float:
@@ -268,7 +269,9 @@ class CameraMotion:
         return CameraMotion(self.model, self.intrinsics, poses, self.weights)
 
     def rescale(self, image_shape) -> CameraMotion:
-        """This motion for the same camera at another resolution (e.g. estimated on a downscaled copy).
+        """This motion for the same camera at another resolution.
+
+        E.g. a motion estimated on a downscaled copy, applied to the full image.
 
         Parameters
         ----------
@@ -410,7 +413,7 @@ def _check_points(points) -> np.ndarray:
 
 
 def _grid_points(shape, grid) -> np.ndarray:
-    """Centres of a ``grid`` of equal cells over an image of ``shape``, (rows*cols, 2) (row, col)."""
+    """Centres (row, col) of a ``grid`` of equal cells over an image of ``shape``: (r*c, 2)."""
     rows, cols = shape
     r = (np.arange(grid[0]) + 0.5) * rows / grid[0] - 0.5
     c = (np.arange(grid[1]) + 0.5) * cols / grid[1] - 0.5
