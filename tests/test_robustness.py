@@ -436,11 +436,8 @@ def test_normal_input_raises_no_warning_anywhere_in_the_pipeline(case, tmp_path,
         CameraMotion.load(tmp_path / "m.json").psf_field()
         write_image(tmp_path / "r.png", restored)
         read_image(tmp_path / "r.png")
-        np.seterr(all="raise")  # and no silent floating-point trouble either
-        try:
+        with np.errstate(all="raise"):  # and no silent floating-point trouble either
             deconvolve(image, est.motion, "wiener")
-        finally:
-            np.seterr(all="warn")
 
 
 # --------------------------------------------------------------------------------------

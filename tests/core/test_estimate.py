@@ -88,7 +88,7 @@ def test_callback_raising_stopiteration_returns_the_estimate_so_far(uniform_case
 
     def stop_after_two(record):
         seen.append(record)
-        if record.iteration == 1:
+        if record.iteration == 1 and record.cost is not None:  # after the first MDF update
             raise StopIteration
 
     est = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9,
@@ -153,3 +153,23 @@ def test_deblur_checks_the_deconvolution_before_estimating(uniform_case):
             deblur(uniform_case.blurred, "xu", "translation", max_blur=9,
                    callback=records.append, **kwargs)
     assert records == []  # refused before the first progress record
+
+
+def test_records_come_between_the_steps_of_an_alternation(uniform_case):
+    # a consumer can only cancel at a record: the latent update reports each splitting
+    # step and the MDF update announces itself, so a Cancel waits for one step at most
+    records = list(_records(iter_estimate_motion(uniform_case.blurred, "xu", "translation",
+                                                 max_blur=9, n_iter=1)))
+    latent = [r for r in records if r.message.endswith("latent image")]
+    motion = [r for r in records if r.message.endswith("camera motion")]
+    n_scales = records[-1].n_scales
+    assert len(motion) == n_scales and len(latent) >= 5 * n_scales
+    assert [r.step for r in records] == sorted(r.step for r in records)
+
+
+def _records(gen):
+    while True:
+        try:
+            yield next(gen)
+        except StopIteration:
+            return

@@ -36,7 +36,7 @@ from ._validation import as_float_image, as_rng, check_choice, check_positive
 from .camera import MODELS, Intrinsics, PoseGrid, displacements, pose_grid
 from .deconv_prior import grad
 from .lasso import nonneg_lasso
-from .latent import l0_latent
+from .latent import iter_l0_latent
 from .mdf import border_taper, edge_profile_term, gradient_term, psf_basis
 from .motion import CameraMotion, psf_size_for
 from .operators import PatchGrid
@@ -434,8 +434,21 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             level_iter = min(n_iter, _FINEST_UPDATES) if finest and method != "ep" else n_iter
             for it in range(level_iter):
                 if method != "ep":
-                    latent = l0_latent(level.blurred, level.motion(weights), lam_f)
+                    # a record per splitting step: on a 1024 px copy an alternation
+                    # takes seconds, and a consumer can only cancel at a record
+                    where = f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{level_iter}"
+                    steps = iter_l0_latent(level.blurred, level.motion(weights), lam_f)
+                    while True:
+                        try:
+                            next(steps)
+                        except StopIteration as done:
+                            latent = done.value
+                            break
+                        yield Progress("estimate", step, total, f"{where}: latent image",
+                                       scale=li + 1, n_scales=len(scales), iteration=it + 1)
                     lam_f = max(lam_f / 1.1, 1e-4)
+                    yield Progress("estimate", step, total, f"{where}: camera motion",
+                                   scale=li + 1, n_scales=len(scales), iteration=it + 1)
                 weights, cost, n_lasso = _mdf_step(level, weights, active, latent, ep_images,
                                                    lambda_w, lambda_ip, method,
                                                    salient=_SALIENT_START * 1.1 ** min(it, 24))

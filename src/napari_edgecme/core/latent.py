@@ -24,7 +24,7 @@ from .deconv_prior import grad, grad_adjoint
 from .deconv_solvers import LatentDomain, PatchFourier
 from .motion import CameraMotion
 
-__all__ = ["l0_latent"]
+__all__ = ["iter_l0_latent", "l0_latent"]
 
 
 def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
@@ -45,11 +45,37 @@ def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
     should_stop : callable, optional
         Polled between splitting steps; returning True ends early with the current
         estimate.
+    return_gradients : bool
+        Also return the thresholded gradients of the last splitting step.
 
     Returns
     -------
     ndarray of shape (H, W)
-        The latent estimate on the frame, same dtype as ``blurred``.
+        The latent estimate on the frame, same dtype as ``blurred`` (and, with
+        ``return_gradients``, the gradients, shape (2, H, W)).
+    """
+    steps = iter_l0_latent(blurred, motion, lambda_f, kappa=kappa, beta_max=beta_max,
+                           return_gradients=return_gradients)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+        if should_stop is not None and should_stop():
+            try:
+                steps.send(True)
+            except StopIteration as done:
+                return done.value
+
+
+def iter_l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
+                   kappa: float = 2.0, beta_max: float = 64.0,
+                   return_gradients: bool = False):
+    """:func:`l0_latent` as a generator: yields after each splitting step, returns the image.
+
+    The estimators drive it to report progress (and so to be cancellable) between the
+    splitting steps of a large image. Sending ``True`` at a yield ends early: the
+    generator then returns the current estimate (``StopIteration.value``).
     """
     H, W = blurred.shape
     pad = (motion.psf_size() + 1) // 2
@@ -58,6 +84,7 @@ def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
     solver.set_observation(blurred)
     f = domain.extend(blurred)
     beta = 2.0 * lambda_f
+    gx = gy = None
     while beta < beta_max:
         gx, gy = grad(f)
         small = gx * gx + gy * gy < lambda_f / beta
@@ -73,9 +100,11 @@ def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
                 f = done.value
                 break
         beta *= kappa
-        if should_stop is not None and should_stop():
+        if (yield):
             break
     f = np.ascontiguousarray(f[domain.inner])
     if return_gradients:
+        if gx is None:
+            gx, gy = grad(domain.extend(blurred))
         return f, np.stack([gx[domain.inner], gy[domain.inner]])
     return f
