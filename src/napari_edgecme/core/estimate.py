@@ -381,8 +381,12 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     scales = _pyramid(work_shape, blur_work, DEFAULTS["coarsest_blur"])
     if method == "ep":  # no latent to alternate with: re-solve once after the clean-up
         n_iter = min(n_iter, _EP_UPDATES_PER_SCALE)
-    finest_iter = n_iter if method == "ep" else min(n_iter, _FINEST_UPDATES)
-    total = (len(scales) - 1) * n_iter + finest_iter + (1 if method != "xu" else 0)
+    # alternations per scale: fewer at the finest for the latent-image methods (the
+    # xu+ep -> xu fallback below keeps them valid)
+    level_iters = [n_iter] * len(scales)
+    if method != "ep":
+        level_iters[-1] = min(n_iter, _FINEST_UPDATES)
+    total = sum(level_iters) + (1 if method != "xu" else 0)
     step = 0
     yield Progress("estimate", step, total, "preparing", n_scales=len(scales))
     work_profiles = None
@@ -430,8 +434,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 ep_images = _edge_images(level, work_profiles, s, gain)
             # coarse levels: sharper edges, larger weight
             lam_f = lambda_f * s ** -_LAMBDA_F_SCALING
-            finest = li == len(scales) - 1
-            level_iter = min(n_iter, _FINEST_UPDATES) if finest and method != "ep" else n_iter
+            level_iter = level_iters[li]
             for it in range(level_iter):
                 if method != "ep":
                     # a record per splitting step: on a 1024 px copy an alternation

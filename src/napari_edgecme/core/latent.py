@@ -23,14 +23,16 @@ import numpy as np
 from .deconv_prior import grad, grad_adjoint
 from .deconv_solvers import LatentDomain, PatchFourier
 from .motion import CameraMotion
+from .progress import drive
 
 __all__ = ["iter_l0_latent", "l0_latent"]
 
 
 def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
-              kappa: float = 2.0, beta_max: float = 64.0, should_stop=None,
-              return_gradients: bool = False):
+              kappa: float = 2.0, beta_max: float = 64.0, return_gradients: bool = False):
     """Estimate the latent image under an L0 gradient prior (Eq. 21).
+
+    The plain-function face of :func:`iter_l0_latent`.
 
     Parameters
     ----------
@@ -42,9 +44,6 @@ def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
         Weight of the L0 gradient prior (Xu et al.: 2e-3 .. 1e-2 for the finest scale).
     kappa, beta_max : float
         Half-quadratic splitting schedule (Pan et al.: 2 and 1e5).
-    should_stop : callable, optional
-        Polled between splitting steps; returning True ends early with the current
-        estimate.
     return_gradients : bool
         Also return the thresholded gradients of the last splitting step.
 
@@ -54,28 +53,18 @@ def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
         The latent estimate on the frame, same dtype as ``blurred`` (and, with
         ``return_gradients``, the gradients, shape (2, H, W)).
     """
-    steps = iter_l0_latent(blurred, motion, lambda_f, kappa=kappa, beta_max=beta_max,
-                           return_gradients=return_gradients)
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            return done.value
-        if should_stop is not None and should_stop():
-            try:
-                steps.send(True)
-            except StopIteration as done:
-                return done.value
+    return drive(iter_l0_latent(blurred, motion, lambda_f, kappa=kappa, beta_max=beta_max,
+                                return_gradients=return_gradients))
 
 
 def iter_l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
                    kappa: float = 2.0, beta_max: float = 64.0,
                    return_gradients: bool = False):
-    """:func:`l0_latent` as a generator: yields after each splitting step, returns the image.
+    """:func:`l0_latent` as a generator: yields ``None`` after each splitting step.
 
     The estimators drive it to report progress (and so to be cancellable) between the
-    splitting steps of a large image. Sending ``True`` at a yield ends early: the
-    generator then returns the current estimate (``StopIteration.value``).
+    splitting steps of a large image; it returns what :func:`l0_latent` returns
+    (``StopIteration.value``).
     """
     H, W = blurred.shape
     pad = (motion.psf_size() + 1) // 2
@@ -92,16 +81,9 @@ def iter_l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *
         gy[small] = 0
         prior = grad_adjoint(gx, gy)
         prior *= blurred.dtype.type(beta)
-        gen = solver.solve(prior, 1.0, beta)
-        while True:
-            try:
-                next(gen)
-            except StopIteration as done:
-                f = done.value
-                break
+        f = drive(solver.solve(prior, 1.0, beta))
         beta *= kappa
-        if (yield):
-            break
+        yield
     f = np.ascontiguousarray(f[domain.inner])
     if return_gradients:
         if gx is None:
