@@ -60,9 +60,11 @@ from napari_edgecme.core.motion import CameraMotion
 from napari_edgecme.core.synth import (
     add_noise,
     densify_path,
+    distance_to_edges,
     quantize,
     random_trajectory,
     render_blur,
+    render_shapes,
     trajectory_extent,
 )
 
@@ -90,43 +92,6 @@ def scene_shapes(size):
                 shapes.append(("poly", np.stack([cr + r * np.sin(a), cc + r * np.cos(a)], -1),
                                level))
     return shapes
-
-
-def render_scene(shapes, size, ss=3):
-    rr, cc = np.mgrid[0:size, 0:size].astype(float)
-    out = np.zeros((size, size))
-    for dr in (np.arange(ss) + 0.5) / ss - 0.5:
-        for dc in (np.arange(ss) + 0.5) / ss - 0.5:
-            sub = np.full((size, size), 0.15)
-            r, c = rr + dr, cc + dc
-            for kind, geo, level in shapes:
-                if kind == "disc":
-                    inside = (r - geo[0]) ** 2 + (c - geo[1]) ** 2 <= geo[2] ** 2
-                else:
-                    inside = np.ones_like(r, bool)
-                    centre = geo.mean(0)
-                    for a, b in zip(geo, np.roll(geo, -1, 0), strict=True):
-                        nrm = np.array([-(b[1] - a[1]), b[0] - a[0]])
-                        side = np.sign((centre - a) @ nrm)
-                        inside &= ((r - a[0]) * nrm[0] + (c - a[1]) * nrm[1]) * side >= 0
-                sub[inside] = level
-            out += sub
-    return (out / ss**2).astype(np.float32)
-
-
-def edge_distance(shapes, pts):
-    best = np.full(len(pts), np.inf)
-    for kind, geo, _ in shapes:
-        if kind == "disc":
-            d = np.abs(np.hypot(pts[:, 0] - geo[0], pts[:, 1] - geo[1]) - geo[2])
-        else:
-            d = np.full(len(pts), np.inf)
-            for a, b in zip(geo, np.roll(geo, -1, 0), strict=True):
-                ab = b - a
-                t = np.clip((pts - a) @ ab / (ab @ ab), 0, 1)
-                d = np.minimum(d, np.hypot(*(pts - (a + t[:, None] * ab)).T))
-        best = np.minimum(best, d)
-    return best
 
 
 # ---------------------------------------------------------------------------------------
@@ -229,7 +194,7 @@ def run_case(truth: CameraMotion, shapes, sharp, rng, max_extracted=200):
     if len(ex) >= 10:
         Hc = homographies(truth.model, truth.intrinsics, truth.centroid_pose()[None])[0]
         back = warp_points(np.linalg.inv(Hc)[None], ex.centroids[:, ::-1])[0][:, ::-1]
-        err = edge_distance(shapes, back)
+        err = distance_to_edges(shapes, back)
         row["x_dc_max"], row["x_dc_mean"] = float(err.max()), float(err.mean())
         use = ex.subset(np.arange(min(len(ex), max_extracted)))  # the best ones
         est_x = mdf_from_profiles(use, grid, truth.intrinsics)
@@ -310,7 +275,7 @@ def main(argv=None) -> None:
     rng = np.random.default_rng(0)
     intr = Intrinsics.from_image_shape((SIZE, SIZE))
     shapes = scene_shapes(SIZE)
-    sharp = render_scene(shapes, SIZE)
+    sharp = render_shapes((SIZE, SIZE), shapes, supersample=3)
     degrees = (0, 2, 4, 7) if args.quick else (0, 1, 2, 3, 4, 5, 6, 7)
     seeds = range(2) if args.quick else range(5)
 

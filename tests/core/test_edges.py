@@ -25,7 +25,13 @@ from napari_edgecme.core.edges import (
     profile_along_line,
     srgb_to_linear,
 )
-from napari_edgecme.core.synth import add_noise, make_case, quantize
+from napari_edgecme.core.synth import (
+    add_noise,
+    distance_to_edges,
+    make_case,
+    quantize,
+    render_shapes,
+)
 
 # ---------------------------------------------------------------------------------------
 # a scene with exactly known edges
@@ -43,47 +49,6 @@ SHAPES = [  # (kind, geometry in (row, col), grey level); background 0.15
     ("poly", _polygon(72, 188, 44, 4, 0.3), 0.7),
     ("poly", _polygon(186, 66, 46, 3, 0.5), 0.85),
 ]
-
-
-def _inside(kind, geo, r, c):
-    if kind == "disc":
-        return (r - geo[0]) ** 2 + (c - geo[1]) ** 2 <= geo[2] ** 2
-    centre = geo.mean(0)
-    inside = np.ones(r.shape, bool)
-    for a, b in zip(geo, np.roll(geo, -1, 0), strict=True):
-        normal = np.array([-(b[1] - a[1]), b[0] - a[0]])
-        side = np.sign((centre - a) @ normal)
-        inside &= ((r - a[0]) * normal[0] + (c - a[1]) * normal[1]) * side >= 0
-    return inside
-
-
-def render_scene(shape=(256, 256), shapes=SHAPES, background=0.15, ss=4):
-    """Shapes on a flat ground, anti-aliased by ss x ss supersampling."""
-    rr, cc = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
-    out = np.zeros(shape)
-    for dr in (np.arange(ss) + 0.5) / ss - 0.5:
-        for dc in (np.arange(ss) + 0.5) / ss - 0.5:
-            sub = np.full(shape, background)
-            for kind, geo, level in shapes:
-                sub[_inside(kind, geo, rr + dr, cc + dc)] = level
-            out += sub
-    return (out / ss**2).astype(np.float32)
-
-
-def boundary_distance(points, shapes=SHAPES):
-    """Distance (px) from points (row, col) to the nearest true edge."""
-    best = np.full(len(points), np.inf)
-    for kind, geo, _ in shapes:
-        if kind == "disc":
-            d = np.abs(np.hypot(points[:, 0] - geo[0], points[:, 1] - geo[1]) - geo[2])
-        else:
-            d = np.full(len(points), np.inf)
-            for a, b in zip(geo, np.roll(geo, -1, 0), strict=True):
-                ab = b - a
-                t = np.clip((points - a) @ ab / (ab @ ab), 0, 1)
-                d = np.minimum(d, np.hypot(*(points - (a + t[:, None] * ab)).T))
-        best = np.minimum(best, d)
-    return best
 
 
 def true_projections(motion, prof, size=41):
@@ -119,12 +84,12 @@ def mapped_edge_distance(motion, points):
     """Distance of blurred-image points, mapped back by the centroid pose, to the true edges."""
     Hc = homographies(motion.model, motion.intrinsics, motion.centroid_pose()[None])[0]
     xy = warp_points(np.linalg.inv(Hc)[None], points[:, ::-1])[0]
-    return boundary_distance(xy[:, ::-1])
+    return distance_to_edges(SHAPES, xy[:, ::-1])
 
 
 @functools.cache
 def _scene():
-    return render_scene()
+    return render_shapes((256, 256), SHAPES)
 
 
 @functools.cache
@@ -595,7 +560,7 @@ def test_figure_renders_and_saves(one_case, tmp_path):
 # ---------------------------------------------------------------------------------------
 
 def test_noise_estimate_ignores_edges(rng):
-    img = render_scene()
+    img = render_shapes((256, 256), SHAPES)
     noisy = add_noise(img, 0.02, rng)
     assert estimate_noise(noisy) == pytest.approx(0.02, rel=0.1)
     assert estimate_noise(img) < 0.002
