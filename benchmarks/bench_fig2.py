@@ -71,6 +71,15 @@ from napari_edgecme.core.synth import (
 OUT = Path(__file__).with_name("out")
 SIZE = 512
 
+#: The plot's lines: (result key, style, legend) for the centroid-error row and the
+#: PSF-NCC row.
+PLOT_LINES = (
+    (("dc_max", "o-", "max, projected"), ("dc_mean", "s-", "mean, projected"),
+     ("x_dc_max", "o--", "max, extracted"), ("x_dc_mean", "s--", "mean, extracted")),
+    (("ncc_min", "o-", "min, projected"), ("ncc_mean", "s-", "mean, projected"),
+     ("x_ncc_min", "o--", "min, extracted"), ("x_ncc_mean", "s--", "mean, extracted")),
+)
+
 
 # ---------------------------------------------------------------------------------------
 # scene with known edges
@@ -232,18 +241,10 @@ def plot(sweep, models, path):
         series.append((rows, f"random {name} trajectory", f"{name} model"))
     for col, (rows, xlabel, title) in enumerate(series):
         xs = np.asarray([lab for lab, _ in rows], float)
-        for key, style, label in (("dc_max", "o-", "max, projected"),
-                                  ("dc_mean", "s-", "mean, projected"),
-                                  ("x_dc_max", "o--", "max, extracted"),
-                                  ("x_dc_mean", "s--", "mean, extracted")):
-            y = [r.get(key, np.nan) for _, r in rows]
-            axes[0, col].plot(xs, y, style, label=label)
-        for key, style, label in (("ncc_min", "o-", "min, projected"),
-                                  ("ncc_mean", "s-", "mean, projected"),
-                                  ("x_ncc_min", "o--", "min, extracted"),
-                                  ("x_ncc_mean", "s--", "mean, extracted")):
-            y = [r.get(key, np.nan) for _, r in rows]
-            axes[1, col].plot(xs, y, style, label=label)
+        for row, lines in enumerate(PLOT_LINES):
+            for key, style, label in lines:
+                axes[row, col].plot(xs, [r.get(key, np.nan) for _, r in rows], style,
+                                    label=label)
         axes[0, col].set_title(f"{'abc'[col]}: centroid error d_c, {title}", fontsize=9)
         axes[1, col].set_title(f"{'def'[col]}: PSF NCC, {title}", fontsize=9)
         for ax in axes[:, col]:
