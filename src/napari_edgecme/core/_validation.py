@@ -15,6 +15,7 @@ __all__ = [
     "FLOAT_RANGE",
     "as_float_image",
     "as_rng",
+    "check_bool",
     "check_choice",
     "check_positive",
     "float_dtype",
@@ -136,6 +137,13 @@ def check_choice(value, name: str, choices) -> str:
         listed = ", ".join(repr(c) for c in choices)
         raise ValueError(f"{name} must be one of {listed}; got {value!r}")
     return value
+
+
+def check_bool(value, name: str) -> bool:
+    """Return ``value`` as a bool if it is one (Python or numpy), else a ValueError."""
+    if not isinstance(value, bool | np.bool_):
+        raise ValueError(f"{name} must be True or False; got {value!r}")
+    return bool(value)
 
 
 def check_positive(value, name: str, *, integer: bool = False, allow_zero: bool = False,

@@ -99,7 +99,7 @@ from collections.abc import Callable, Generator
 
 import numpy as np
 
-from ._validation import as_float_image, check_choice, check_positive
+from ._validation import as_float_image, check_bool, check_choice, check_positive
 from .deconv_prior import check_alpha
 from .deconv_solvers import (
     LatentDomain,
@@ -302,8 +302,7 @@ def _check_params(method: str, params: dict) -> dict:
         opts["stride"] = check_positive(opts["stride"], "stride", integer=True)
         if opts["stride"] < 8:
             raise ValueError(f"stride must be >= 8; got {opts['stride']!r}")
-    if not isinstance(opts["preview"], bool | np.bool_):
-        raise ValueError(f"preview must be True or False; got {opts['preview']!r}")
+    opts["preview"] = check_bool(opts["preview"], "preview")
     return opts
 
 

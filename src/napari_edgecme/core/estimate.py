@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from ._validation import as_float_image, as_rng, check_choice, check_positive
+from ._validation import as_float_image, as_rng, check_bool, check_choice, check_positive
 from .camera import MODELS, Intrinsics, PoseGrid, displacements, pose_grid
 from .deconv_prior import grad
 from .lasso import nonneg_lasso
@@ -356,8 +356,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         focal_px = check_positive(focal_px, "focal_px")
     if profiles is not None and not hasattr(profiles, "rescaled"):
         raise ValueError(f"profiles must be None or EdgeProfiles; got {type(profiles).__name__}")
-    if not isinstance(preview, bool | np.bool_):
-        raise ValueError(f"preview must be True or False; got {preview!r}")
+    preview = check_bool(preview, "preview")
     rng = as_rng(rng)
     if method == "xu":
         lambda_ip = 0.0
