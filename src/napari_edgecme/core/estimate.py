@@ -229,6 +229,16 @@ class _Level:
         return PatchGrid(self.shape, K, stride=stride)
 
 
+def _repeating(gen, record: Progress):
+    """Run ``gen`` to its end, yielding ``record`` at each of its yields; return its value."""
+    while True:
+        try:
+            next(gen)
+        except StopIteration as done:
+            return done.value
+        yield record
+
+
 def _initial_weights(level: _Level, previous: CameraMotion | None) -> np.ndarray:
     if previous is None:
         # a small blob, not a delta: the delta is a fixed point of the alternation (the
@@ -435,22 +445,16 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             lam_f = lambda_f * s ** -_LAMBDA_F_SCALING
             level_iter = level_iters[li]
             for it in range(level_iter):
+                where = f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{level_iter}"
+                at = {"scale": li + 1, "n_scales": len(scales), "iteration": it + 1}
                 if method != "ep":
                     # a record per splitting step: on a 1024 px copy an alternation
                     # takes seconds, and a consumer can only cancel at a record
-                    where = f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{level_iter}"
-                    steps = iter_l0_latent(level.blurred, level.motion(weights), lam_f)
-                    while True:
-                        try:
-                            next(steps)
-                        except StopIteration as done:
-                            latent = done.value
-                            break
-                        yield Progress("estimate", step, total, f"{where}: latent image",
-                                       scale=li + 1, n_scales=len(scales), iteration=it + 1)
+                    latent = yield from _repeating(
+                        iter_l0_latent(level.blurred, level.motion(weights), lam_f),
+                        Progress("estimate", step, total, f"{where}: latent image", **at))
                     lam_f = max(lam_f / 1.1, 1e-4)
-                    yield Progress("estimate", step, total, f"{where}: camera motion",
-                                   scale=li + 1, n_scales=len(scales), iteration=it + 1)
+                    yield Progress("estimate", step, total, f"{where}: camera motion", **at)
                 weights, cost, n_lasso = _mdf_step(level, weights, active, latent, ep_images,
                                                    lambda_w, lambda_ip, method,
                                                    salient=_SALIENT_START * 1.1 ** min(it, 24))
@@ -459,11 +463,9 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 record.active_poses.append(int(active.sum()))
                 record.lasso_iterations.append(n_lasso)
                 step += 1
-                yield Progress("estimate", step, total,
-                               f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{level_iter}",
-                               scale=li + 1, n_scales=len(scales), iteration=it + 1,
-                               cost=cost, preview=latent.copy() if preview and latent is not None
-                               else None)
+                yield Progress("estimate", step, total, where, cost=cost,
+                               preview=latent.copy() if preview and latent is not None
+                               else None, **at)
         info.converged = True
         info.message += "completed all scales"
     except StopRequested:
