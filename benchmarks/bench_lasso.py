@@ -35,6 +35,7 @@ import numpy as np
 from scipy import ndimage
 
 from napari_edgecme.core.camera import Intrinsics, displacements, pose_grid
+from napari_edgecme.core.deconv_prior import grad
 from napari_edgecme.core.estimate import DEFAULTS
 from napari_edgecme.core.lasso import QuadraticTerm, lipschitz_constant, nonneg_lasso
 from napari_edgecme.core.mdf import border_taper, gradient_term, psf_basis
@@ -43,11 +44,6 @@ from napari_edgecme.core.operators import PatchGrid
 from napari_edgecme.core.synth import make_case, sample_image
 
 GAPS = (1e-2, 1e-3, 1e-4)
-
-
-def grad(image):
-    return np.stack([np.diff(image, axis=1, append=image[:, -1:]),
-                     np.diff(image, axis=0, append=image[-1:, :])])
 
 
 def build_problem(size: int, model: str, max_blur: float, seed: int):
@@ -60,8 +56,8 @@ def build_problem(size: int, model: str, max_blur: float, seed: int):
     pgrid = PatchGrid(case.blurred.shape, K, stride=int(max(2 * K, min(4 * K, 128))))
     basis = psf_basis(model, intrinsics, poses, pgrid)
     taper = border_taper(case.blurred.shape, K // 2)
-    f = ndimage.gaussian_filter(grad(case.sharp) * taper, (0, 1, 1))
-    g = ndimage.gaussian_filter(grad(case.blurred) * taper, (0, 1, 1))
+    f = ndimage.gaussian_filter(np.stack(grad(case.sharp)) * taper, (0, 1, 1))
+    g = ndimage.gaussian_filter(np.stack(grad(case.blurred)) * taper, (0, 1, 1))
     term = gradient_term(f, g, pgrid, basis)
     return term.scaled(1.0 / term.constant), poses.shape[0], K
 
@@ -71,21 +67,11 @@ def objective(term: QuadraticTerm, lam: float, w: np.ndarray) -> float:
 
 
 def fista_trace(term, lam, n, max_iter, L):
-    """FISTA as nonneg_lasso runs it, recording the objective after every iteration."""
+    """The engine's FISTA (nonneg_lasso), with the iterate recorded after every iteration."""
     trace = []
-    x = np.full(n, 1.0 / n)
-    y, t = x.copy(), 1.0
     t0 = time.perf_counter()
-    for _ in range(max_iter):
-        grad_y = term.matvec(y) - term.linear + lam
-        x_new = np.maximum(y - grad_y / L, 0.0)
-        t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        if (y - x_new) @ (x_new - x) > 0:
-            t_new, y = 1.0, x_new.copy()
-        else:
-            y = x_new + ((t - 1.0) / t_new) * (x_new - x)
-        x, t = x_new, t_new
-        trace.append((time.perf_counter() - t0, x))
+    nonneg_lasso(term, lam, np.full(n, 1.0 / n), max_iter=max_iter, tol=0.0, lipschitz=L,
+                 callback=lambda x: trace.append((time.perf_counter() - t0, x.copy())))
     return trace
 
 

@@ -26,6 +26,10 @@ def test_nonneg_lasso_satisfies_the_kkt_conditions(rng):
     assert np.abs(grad[active]).max() < 1e-5  # stationary on the support
     assert grad[~active].min() > -1e-5  # no descent direction off the support
     assert set(np.argsort(res.x)[-3:]) == {3, 17, 29}
+    seen = []
+    again = nonneg_lasso(term, lam, np.zeros(40), max_iter=50, tol=1e-10,
+                         callback=lambda w: seen.append(w.copy()))
+    assert len(seen) == again.nit and np.array_equal(seen[-1], again.x)
 
 
 @pytest.fixture(scope="module")

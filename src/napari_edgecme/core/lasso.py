@@ -96,7 +96,8 @@ def lipschitz_constant(matvec, n: int, n_iter: int = 30, rng=0) -> float:
 
 
 def nonneg_lasso(term: QuadraticTerm, lam: float, w0: np.ndarray, *, max_iter: int = 200,
-                 tol: float = 1e-4, lipschitz: float | None = None) -> LassoResult:
+                 tol: float = 1e-4, lipschitz: float | None = None,
+                 callback: Callable[[np.ndarray], object] | None = None) -> LassoResult:
     """Solve ``min_w 1/2 w^T Q w - b^T w + lam * sum(w)`` subject to ``w >= 0`` by FISTA.
 
     Parameters
@@ -113,6 +114,9 @@ def nonneg_lasso(term: QuadraticTerm, lam: float, w0: np.ndarray, *, max_iter: i
         Stop when the relative change of ``w`` falls below ``tol``.
     lipschitz : float, optional
         Upper bound on the largest eigenvalue of ``Q`` (estimated when omitted).
+    callback : callable, optional
+        Called with the iterate ``w`` (n,) after every iteration (e.g. to trace the
+        convergence, as ``benchmarks/bench_lasso.py`` does); must not modify it.
 
     Returns
     -------
@@ -141,6 +145,8 @@ def nonneg_lasso(term: QuadraticTerm, lam: float, w0: np.ndarray, *, max_iter: i
             y = x_new + ((t - 1.0) / t_new) * (x_new - x)
         change = np.linalg.norm(x_new - x) / max(np.linalg.norm(x_new), 1e-30)
         x, t = x_new, t_new
+        if callback is not None:
+            callback(x)
         if it % 10 == 0 or change < tol:
             Qx = term.matvec(x)
             cost = term.value(x, Qx) + lam * float(x.sum())
