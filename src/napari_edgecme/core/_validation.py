@@ -39,7 +39,7 @@ def float_dtype(dtype) -> np.dtype:
 
 
 def as_float_image(image, name: str = "image", *, allow_rgb: bool = False,
-                   min_size: int = 2) -> np.ndarray:
+                   min_size: int = 2, check_range: bool = True) -> np.ndarray:
     """Validate an image and return it as floating point in [0, 1] (a new array).
 
     Parameters
@@ -55,6 +55,12 @@ def as_float_image(image, name: str = "image", *, allow_rgb: bool = False,
         Accept a trailing channel axis of length 3 (RGB).
     min_size : int
         Smallest accepted number of rows and of columns.
+    check_range : bool
+        Refuse floating images outside [0, 1] (the rule for a user's input). The
+        engine passes ``False`` for its own intermediate images -- contrast-stretched
+        pyramid levels, latent estimates -- whose range is not the file's, to
+        functions whose result does not depend on the [0, 1] scale (gradients,
+        linear operators): an internal image must never be refused as bad input.
 
     Returns
     -------
@@ -97,7 +103,7 @@ def as_float_image(image, name: str = "image", *, allow_rgb: bool = False,
             bad = int(np.count_nonzero(~np.isfinite(out)))
             raise ValueError(f"{name} contains {bad} non-finite values (NaN or inf)")
         lo, hi = float(out.min()), float(out.max())
-        if lo < FLOAT_RANGE[0] or hi > FLOAT_RANGE[1]:
+        if check_range and (lo < FLOAT_RANGE[0] or hi > FLOAT_RANGE[1]):
             raise ValueError(
                 f"{name} must be scaled to [0, 1] for floating-point input; got values in "
                 f"[{lo:g}, {hi:g}] (divide 8-bit data by 255, 16-bit data by 65535)"

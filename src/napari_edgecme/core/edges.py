@@ -498,15 +498,16 @@ class EdgeProfiles:
 # public helpers
 # ---------------------------------------------------------------------------------------
 
-def to_luminance(image, name: str = "image") -> np.ndarray:
+def to_luminance(image, name: str = "image", *, check_range: bool = True) -> np.ndarray:
     """Validate an image and return its luminance, (M, N) float32 (float64 kept).
 
     RGB input is weighted as :func:`skimage.color.rgb2gray` (Rec. 709). Floating-point
     images must be scaled to [0, 1] (the engine's input rule,
     :func:`~napari_edgecme.core._validation.as_float_image`): every threshold of the
-    edge tests is on that scale.
+    edge tests is on that scale. ``check_range=False`` accepts any finite range, for
+    callers whose result is linear in the intensities (see ``as_float_image``).
     """
-    img = as_float_image(image, name, allow_rgb=True, min_size=2)
+    img = as_float_image(image, name, allow_rgb=True, min_size=2, check_range=check_range)
     if img.ndim == 3:
         img = (img @ _LUMA.astype(img.dtype)).astype(img.dtype)
     return img

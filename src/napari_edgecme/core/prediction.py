@@ -257,7 +257,7 @@ def edge_profile_image(image, profiles: EdgeProfiles, *, scale: float = 1.0,
     ----------
     image : array_like of shape (H, W) or (H, W, 3)
         The blurred image at this pyramid level (already resized by the caller); RGB is
-        reduced to luminance.
+        reduced to luminance. Any finite intensity range (``I_ep`` is linear in it).
     profiles : EdgeProfiles
         Centroid-aligned profiles of the full-resolution image.
     scale : float
@@ -288,7 +288,9 @@ def edge_profile_image(image, profiles: EdgeProfiles, *, scale: float = 1.0,
     of this level, so that ``I_ep`` integrates to ``|c1 - c2|`` across an edge at every
     level, like ``I_p``.
     """
-    img = to_luminance(image)
+    # I_ep is linear in the intensities, so any finite range is valid here: the
+    # estimator passes its contrast-stretched pyramid levels
+    img = to_luminance(image, check_range=False)
     profiles = _check_profiles(profiles)
     check_choice(gradient, "gradient", ("normal", "magnitude"))
     keep, owner = profile_masks(profiles, img.shape, scale=scale, mask=mask,
