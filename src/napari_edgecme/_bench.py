@@ -290,11 +290,12 @@ def _job_estimate(job: dict) -> dict:
 
     image = np.load(job["image"])
     t0, c0 = time.perf_counter(), time.process_time()
-    est = estimate_motion(image, job["method"], job["model"], job["max_blur"], rng=0,
-                          n_iter=job.get("n_iter"))
+    est = estimate_motion(image, job["method"], job["model"], job["max_blur"],
+                          job.get("focal_px"), rng=0, n_iter=job.get("n_iter"))
     out = {"estimate_s": time.perf_counter() - t0, "estimate_cpu_s": time.process_time() - c0,
            "n_profiles": est.info.n_profiles, "poses": est.motion.n_poses,
-           "message": est.info.message, "converged": est.info.converged}
+           "message": est.info.message, "converged": est.info.converged,
+           "method_run": est.info.method, "no_blur": bool(getattr(est.info, "no_blur", False))}
     if job.get("motion"):
         est.motion.save(job["motion"])
     if job.get("restored"):

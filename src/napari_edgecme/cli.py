@@ -576,6 +576,16 @@ def cmd_demo(args, console: _Console) -> int:
 def cmd_bench(args, console: _Console) -> int:
     from . import _bench
 
+    if args.suite != "synthetic":
+        from . import _suites
+
+        written = _suites.run_suite(args.suite, args.out, data=args.data, quick=args.quick,
+                                    jobs=args.jobs, cases=args.cases, log=console.info)
+        console.info("wrote " + ", ".join(str(p) for p in written))
+        return EXIT_OK
+    if args.data is not None:
+        raise _UsageError("--data applies to the lai, levin and real suites "
+                          "(see 'edgecme bench --help')")
     written = _bench.run_bench(args.out, quick=args.quick, size=args.size, cases=args.cases,
                                speed_size=args.speed_size, repeat=args.repeat,
                                large=not args.no_large, log=console.info)
@@ -780,9 +790,23 @@ def build_parser() -> argparse.ArgumentParser:
                 "Xu+Ep / oracle over synthetic shakes) and speed (operator, estimation and "
                 "deconvolution at 800x800, deconvolution of a 12 MP RGB photo) benchmarks, "
                 "written as Markdown and JSON. Each run is a fresh Python process, so its "
-                "peak memory is its own.")
+                "peak memory is its own. --suite lai, levin, real: the suites on real "
+                "camera shake, real captures and real photos.")
+    p.add_argument("--suite", choices=("synthetic", "lai", "levin", "real"),
+                   default="synthetic",
+                   help="synthetic: the project's own shakes (quality and speed); lai: real "
+                        "gyro shakes on natural photos, with the true motion; levin: real "
+                        "captured uniform blurs; real: the paper's real photos, side-by-side "
+                        "sheets (default: %(default)s)")
+    p.add_argument("--data", type=Path, default=None, metavar="DIR",
+                   help="the suite's data folder (default: ../shared/data/<suite>, "
+                        "paper-real for real)")
+    p.add_argument("--jobs", type=_number(int), default=1, metavar="N",
+                   help="cases of a suite run at once, each estimate in its own process "
+                        "(default: %(default)s)")
     p.add_argument("--quick", action="store_true",
-                   help="fewer and smaller cases, no 12 MP case: a few minutes")
+                   help="fewer and smaller cases, no 12 MP case: a few minutes (lai: the 20 "
+                        "cases of quick.txt; levin: the 8 anchor cases)")
     p.add_argument("--out", type=Path, default=Path("edgecme-bench"), metavar="DIR",
                    help="output folder, created if missing (default: ./edgecme-bench)")
     p.add_argument("--size", type=_number(int), default=None, help=argparse.SUPPRESS)

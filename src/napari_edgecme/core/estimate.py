@@ -86,6 +86,14 @@ _WEIGHT_FLOOR = 1.0 / 20.0  # drop weights below this fraction of the largest (W
 #: two sets), a higher mean PSF NCC and 30 % less CPU time.
 _FINEST_UPDATES = 3
 _MAX_ITER = 1000  # cap on n_iter (alternations per scale)
+#: An estimate whose blur extent (px of the working copy, :meth:`CameraMotion.blur_extent`)
+#: is below this has collapsed to the no-blur solution.
+COLLAPSE_EXTENT = 2.0
+#: After a collapse the estimation restarts once with ``lambda_f`` times this.
+_RESTART_LAMBDA_F = 3.0
+#: "No blur found" when the L0 cost of the estimate exceeds the identity's by this factor
+#: (:func:`blind_costs`).
+_NO_BLUR_RATIO = 1.5
 
 
 @dataclass
@@ -123,6 +131,13 @@ class EstimateInfo:
     seconds: float = 0.0
     converged: bool = False
     message: str = ""
+    #: restarts after a collapse to no blur
+    restarts: int = 0
+    #: True when no blur was found (the motion is then the identity)
+    no_blur: bool = False
+    #: L0 cost (Eq. 21, per pixel) of the estimate and of the identity motion
+    blind_cost: float | None = None
+    identity_cost: float | None = None
 
 
 @dataclass
@@ -239,7 +254,16 @@ def _repeating(gen, record: Progress):
         yield record
 
 
-def _initial_weights(level: _Level, previous: CameraMotion | None) -> np.ndarray:
+def _initial_weights(level: _Level, previous: CameraMotion | None,
+                     wide: bool = False) -> np.ndarray:
+    if previous is None and wide:
+        # a blob over the whole grid (a third of its reach): the restart after a collapse
+        half = np.maximum(level.grid.half, 1).astype(float)
+        offsets = np.indices(level.grid.counts) - np.asarray(level.grid.half).reshape(
+            (-1,) + (1,) * len(level.grid.counts))
+        sigma = (half / 3.0).reshape((-1,) + (1,) * len(level.grid.counts))
+        w = np.exp(-0.5 * np.sum((offsets / sigma) ** 2, axis=0))
+        return w / w.sum()
     if previous is None:
         # a small blob, not a delta: the delta is a fixed point of the alternation (the
         # L0 latent of a delta-blurred image explains the data with a delta again)
@@ -425,54 +449,49 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                            n_scales=len(scales))
 
     # -- coarse to fine ------------------------------------------------------------
-    motion: CameraMotion | None = None
-    latent = None
+    run = _CoarseToFine(work, intr_work, model, blur_work, scales, level_iters, method,
+                        work_profiles, gain, lambda_w, lambda_ip, lambda_f, preview, info)
+    motion = latent = None
     stopped = False
     try:
-        for li, s in enumerate(scales):
-            lshape = tuple(max(8, round(n * s)) for n in work_shape)
-            level = _Level(li, _resize(work, lshape), intr_work.rescaled(lshape), model,
-                           max(2.0, blur_work * s))
-            record = ScaleRecord(li + 1, lshape, level.max_blur, level.grid.size)
-            info.scales.append(record)
-            weights = _initial_weights(level, motion)
-            active = np.ones(level.grid.counts, bool) if motion is None else _dilate(
-                weights > 0)
-            ep_images = None
-            if work_profiles is not None and (method == "ep" or lambda_ip > 0):
-                ep_images = _edge_images(level, work_profiles, s, gain)
-            # coarse levels: sharper edges, larger weight
-            lam_f = lambda_f * s ** -_LAMBDA_F_SCALING
-            level_iter = level_iters[li]
-            for it in range(level_iter):
-                where = f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{level_iter}"
-                at = {"scale": li + 1, "n_scales": len(scales), "iteration": it + 1}
-                if method != "ep":
-                    # a record per splitting step: on a 1024 px copy an alternation
-                    # takes seconds, and a consumer can only cancel at a record
-                    latent = yield from _repeating(
-                        iter_l0_latent(level.blurred, level.motion(weights), lam_f),
-                        Progress("estimate", step, total, f"{where}: latent image", **at))
-                    lam_f = max(lam_f / 1.1, 1e-4)
-                    yield Progress("estimate", step, total, f"{where}: camera motion", **at)
-                weights, cost, n_lasso = _mdf_step(level, weights, active, latent, ep_images,
-                                                   lambda_w, lambda_ip, method,
-                                                   salient=_SALIENT_START * 1.1 ** min(it, 24))
-                motion = level.motion(weights)
-                record.costs.append(cost)
-                record.active_poses.append(int(active.sum()))
-                record.lasso_iterations.append(n_lasso)
-                step += 1
-                yield Progress("estimate", step, total, where, cost=cost,
-                               preview=latent.copy() if preview and latent is not None
-                               else None, **at)
+        motion, latent, step = yield from run.iterate(step, total)
+        # -- collapse to no blur: restart once from a wide motion, with a stronger L0
+        # weight (the sharp-edged latent then has to be explained by the blur)
+        if motion.blur_extent() < COLLAPSE_EXTENT:
+            info.restarts += 1
+            extent = motion.blur_extent()
+            total += sum(level_iters)
+            yield Progress("estimate", step, total, f"no blur found (extent {extent:.1f} px): "
+                           "restarting from a wider motion", n_scales=len(scales))
+            again, again_latent, step = yield from run.iterate(
+                step, total, wide_start=True, lambda_f_factor=_RESTART_LAMBDA_F)
+            if again.blur_extent() > extent:
+                motion, latent = again, again_latent
         info.converged = True
         info.message += "completed all scales"
     except StopRequested:
+        motion, latent = run.motion, run.latent
         if motion is None:
             raise
         stopped = True
         info.message += "stopped by callback; returning the estimate so far"
+
+    # -- no blur: the identity explains the image better than any blur found -------------
+    if not stopped:
+        yield Progress("estimate", step, total, "checking the estimate against no blur",
+                       n_scales=len(scales))
+        extent = motion.blur_extent()
+        info.blind_cost, info.identity_cost = blind_costs(run.finest, motion, lambda_f)
+        if extent < COLLAPSE_EXTENT or info.blind_cost > _NO_BLUR_RATIO * info.identity_cost:
+            info.no_blur = True
+            why = (f"the estimate collapsed to {extent:.1f} px" if extent < COLLAPSE_EXTENT
+                   else f"a sharp image explains the photo better than the {extent:.1f} px "
+                        f"blur found (L0 cost {info.blind_cost:.3g} vs {info.identity_cost:.3g})")
+            info.message += f"; no blur found ({why})"
+            warnings.warn(f"no blur found: {why}; returning the identity motion. If the photo "
+                          "is blurred, try a larger max blur or another model",
+                          UserWarning, stacklevel=2)
+            motion = CameraMotion.identity(model, intr_work)
 
     # -- result at the input's own size ----------------------------------------------
     final = motion.compact().recentred().rescale(shape)
@@ -484,6 +503,103 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     if stopped:
         info.converged = False
     return MotionEstimate(final, latent, out_profiles, info)
+
+
+class _CoarseToFine:
+    """The coarse-to-fine alternation (Algorithm 1 over the pyramid), restartable.
+
+    ``iterate`` is a generator of progress records that returns ``(motion, latent,
+    step)``; ``motion``/``latent`` always hold the latest estimate, so a cancelled run
+    can return it. ``finest`` is the finest level after a run (for :func:`blind_costs`).
+    """
+
+    def __init__(self, work, intrinsics, model, blur_work, scales, level_iters, method,
+                 profiles, gain, lambda_w, lambda_ip, lambda_f, preview, info):
+        self.work, self.intrinsics, self.model = work, intrinsics, model
+        self.blur_work, self.scales, self.level_iters = blur_work, scales, level_iters
+        self.method, self.profiles, self.gain = method, profiles, gain
+        self.lambda_w, self.lambda_ip, self.lambda_f = lambda_w, lambda_ip, lambda_f
+        self.preview, self.info = preview, info
+        self.motion: CameraMotion | None = None
+        self.latent = None
+        self.finest: _Level | None = None
+
+    def iterate(self, step: int, total: int, *, wide_start: bool = False,
+                lambda_f_factor: float = 1.0):
+        method, scales, work_shape = self.method, self.scales, self.work.shape
+        self.motion = None
+        for li, s in enumerate(scales):
+            lshape = tuple(max(8, round(n * s)) for n in work_shape)
+            level = _Level(li, _resize(self.work, lshape), self.intrinsics.rescaled(lshape),
+                           self.model, max(2.0, self.blur_work * s))
+            record = ScaleRecord(li + 1, lshape, level.max_blur, level.grid.size)
+            self.info.scales.append(record)
+            weights = _initial_weights(level, self.motion, wide=wide_start)
+            active = np.ones(level.grid.counts, bool) if self.motion is None else _dilate(
+                weights > 0)
+            ep_images = None
+            if self.profiles is not None and (method == "ep" or self.lambda_ip > 0):
+                ep_images = _edge_images(level, self.profiles, s, self.gain)
+            # coarse levels: sharper edges, larger weight
+            lam_f = lambda_f_factor * self.lambda_f * s ** -_LAMBDA_F_SCALING
+            level_iter = self.level_iters[li]
+            for it in range(level_iter):
+                where = f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{level_iter}"
+                at = {"scale": li + 1, "n_scales": len(scales), "iteration": it + 1}
+                if method != "ep":
+                    # a record per splitting step: on a 1024 px copy an alternation
+                    # takes seconds, and a consumer can only cancel at a record
+                    self.latent = yield from _repeating(
+                        iter_l0_latent(level.blurred, level.motion(weights), lam_f),
+                        Progress("estimate", step, total, f"{where}: latent image", **at))
+                    lam_f = max(lam_f / 1.1, 1e-4)
+                    yield Progress("estimate", step, total, f"{where}: camera motion", **at)
+                weights, cost, n_lasso = _mdf_step(level, weights, active, self.latent,
+                                                   ep_images, self.lambda_w, self.lambda_ip,
+                                                   method,
+                                                   salient=_SALIENT_START * 1.1 ** min(it, 24))
+                self.motion = level.motion(weights)
+                record.costs.append(cost)
+                record.active_poses.append(int(active.sum()))
+                record.lasso_iterations.append(n_lasso)
+                step += 1
+                latent = self.latent
+                yield Progress("estimate", step, total, where, cost=cost,
+                               preview=latent.copy() if self.preview and latent is not None
+                               else None, **at)
+            self.finest = level
+        return self.motion, self.latent, step
+
+
+def blind_costs(level: _Level, motion: CameraMotion, lambda_f: float) -> tuple[float, float]:
+    """The L0 blind-deblurring cost (Eq. 21) of ``motion`` and of the identity, per pixel.
+
+    ``E(k) = ||T_k f_k - g||^2 / N + lambda_f ||grad f_k||_0 / N`` with ``f_k`` the L0
+    latent for motion ``k`` (:func:`~.latent.l0_latent`), on the interior of the level
+    (a band of half the PSF size left out). A motion found on a blurred photo costs about
+    as much as the identity -- the L0 objective barely prefers the true blur to none,
+    which is why the alternation can collapse -- but on a sharp photo a blur costs
+    several times more: the test of :data:`_NO_BLUR_RATIO`.
+
+    Returns
+    -------
+    (cost of ``motion``, cost of the identity)
+    """
+    from .latent import l0_latent
+    from .operators import blur
+
+    g = level.blurred
+
+    def cost(k: CameraMotion) -> float:
+        f, (gx, gy) = l0_latent(g, k, lambda_f, return_gradients=True)
+        band = max(k.psf_size(), motion.psf_size()) // 2 + 2
+        inner = (slice(band, -band), slice(band, -band))
+        residual = blur(f, k)[inner] - g[inner]
+        nonzero = (gx[inner] ** 2 + gy[inner] ** 2) > 0
+        return float(np.mean(residual.astype(np.float64) ** 2) + lambda_f * np.mean(nonzero))
+
+    identity = CameraMotion.identity(motion.model, level.intrinsics)
+    return cost(motion.rescale(level.shape)), cost(identity)
 
 
 def _edge_images(level: _Level, profiles, scale: float, gain: float):

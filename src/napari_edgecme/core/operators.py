@@ -470,9 +470,13 @@ class EfficientFilterFlowWeights(LinearOperator):
 
 
 def blur(image, motion: CameraMotion, method: str = "eff", **kwargs) -> np.ndarray:
-    """Blur an image (H, W) or (H, W, C) with a camera motion: ``"eff"`` (fast) or ``"exact"``."""
+    """Blur an image (H, W) or (H, W, C) with a camera motion: ``"eff"`` (fast) or ``"exact"``.
+
+    The blur is linear, so any finite intensity range is accepted (a latent estimate
+    overshoots [0, 1]); integers are scaled by their dtype's maximum.
+    """
     check_choice(method, "method", ("eff", "exact"))
-    img = as_float_image(image, allow_rgb=True)
+    img = as_float_image(image, allow_rgb=True, check_range=False)
     cls = EfficientFilterFlow if method == "eff" else WarpSum
     op = cls(motion.rescale(img.shape), dtype=img.dtype, **kwargs)
     if img.ndim == 2:
