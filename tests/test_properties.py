@@ -227,3 +227,76 @@ def test_names_are_one_of_the_listed_or_one_value_error(method, model):
     message = str(info.value)
     assert message.startswith(("method must be one of", "model must be one of"))
     assert "\n" not in message
+
+
+# --------------------------------------------------------------------------------------
+# images: what the API accepts, the estimator sees through
+# --------------------------------------------------------------------------------------
+
+DTYPES = ("uint8", "uint16", "float32", "float64", "bool")
+
+
+def photo_like(seed: int, shape, dtype: str, clipped: float, lamps: bool, black: bool,
+               white: bool, blocks: bool, noise: float) -> np.ndarray:
+    """A small photo-like image: step edges and smooth shading, with the troubles of real
+    files -- clipped highlights (a share of the brightest pixels set to the maximum), a few
+    saturated lamps in a dim scene, pure black or white regions, JPEG-like 8x8 blocks
+    (each block pulled towards its mean), noise -- in one of the dtypes the API accepts."""
+    rng = np.random.default_rng(seed)
+    rows, cols = np.mgrid[:shape[0], :shape[1]]
+    img = 0.2 + 0.1 * np.sin(rows / 7.0) * np.cos(cols / 5.0)
+    for _ in range(4):
+        a, b, c = rng.normal(size=3)
+        img = img + rng.uniform(0.1, 0.4) * (a * rows + b * cols > c * shape[0] * 0.3)
+    img += noise * rng.standard_normal(shape)
+    if blocks:
+        h, w = (shape[0] // 8) * 8, (shape[1] // 8) * 8
+        tiles = img[:h, :w].reshape(h // 8, 8, w // 8, 8)
+        img[:h, :w] = (0.6 * tiles + 0.4 * tiles.mean(axis=(1, 3), keepdims=True)).reshape(h, w)
+    img = (img - img.min()) / max(np.ptp(img), 1e-9)
+    if clipped > 0:
+        img = np.minimum(img / max(1.0 - clipped, 1e-3), 1.0)
+    if lamps:  # a dim scene with a few saturated 3x3 spots: < 0.5% of the pixels
+        img = 0.3 + 0.3 * img
+        for r, c in rng.integers(4, min(shape) - 4, size=(3, 2)):
+            img[r - 1:r + 2, c - 1:c + 2] = 1.0
+    if black:
+        img[: shape[0] // 3, : shape[1] // 4] = 0.0
+    if white:
+        img[-shape[0] // 4:, -shape[1] // 3:] = 1.0
+    img = np.clip(img, 0.0, 1.0)
+    if dtype == "bool":
+        return img > 0.5
+    if dtype.startswith("uint"):
+        top = np.iinfo(dtype).max
+        return np.round(img * top).astype(dtype)
+    return img.astype(dtype)
+
+
+@settings(max_examples=25, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**16), rows=st.integers(80, 112), cols=st.integers(80, 112),
+       dtype=st.sampled_from(DTYPES), clipped=st.sampled_from([0.0, 0.02, 0.3]),
+       lamps=st.booleans(), black=st.booleans(), white=st.booleans(), blocks=st.booleans(),
+       noise=st.sampled_from([0.0, 0.01, 0.05]),
+       method=st.sampled_from(["ep", "xu", "xu+ep"]))
+def test_any_accepted_image_yields_an_estimate_or_one_clear_refusal(seed, rows, cols, dtype,
+                                                                     clipped, lamps, black,
+                                                                     white, blocks, noise,
+                                                                     method):
+    image = photo_like(seed, (rows, cols), dtype, clipped, lamps, black, white, blocks, noise)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # fallbacks and "no blur found"
+            est = iter_estimate_motion(image, method, "inplane", max_blur=5, n_iter=1, rng=0)
+            while True:
+                next(est)
+    except StopIteration as done:
+        motion = done.value.motion
+        assert_valid(motion)
+        assert motion.image_shape == (rows, cols)
+    except ValueError as err:
+        # the only refusal an accepted image may meet: EpAlone's, with its reason;
+        # never an internal image dressed as bad input ("must be scaled to [0, 1]")
+        assert method == "ep" and str(err).startswith("EpAlone needs at least"), str(err)
+        assert "\n" not in str(err)

@@ -406,7 +406,9 @@ def _estimate_summary(result, requested: str, max_blur: float, focal_source: str
     info = result.info
     method = info.method if info.method == requested else (
         f"{requested} fell back to {info.method}")
-    text = (f"{_describe(result.motion)} ({method}, max blur {max_blur:g} px, focal "
+    described = ("no blur found (identity motion; if the photo is blurred, try a larger "
+                 "--max-blur or another --model)" if info.no_blur else _describe(result.motion))
+    text = (f"{described} ({method}, max blur {max_blur:g} px, focal "
             f"{info.focal_px:.0f} px from {focal_source}")
     if info.n_profiles:
         text += f", {info.n_profiles} edge profiles"
@@ -439,16 +441,21 @@ def cmd_deblur(args, console: _Console) -> int:
     image = read_input_image(path, console)
     result, max_blur, source = _estimate_motion(args, console, image, path)
     t0 = time.perf_counter()
-    restored = console.run(_deconv.iter_deconvolve(image, result.motion, args.deconvolution,
-                                                   **params))
+    if result.info.no_blur:  # nothing to undo: the photo comes back as it was
+        restored = image
+    else:
+        restored = console.run(_deconv.iter_deconvolve(image, result.motion,
+                                                       args.deconvolution, **params))
     seconds = time.perf_counter() - t0
     with _writing(*(p for _, p in outputs)) as tmps:
         _io.write_image(tmps[0], restored, bits=output_bits(image))
         if args.save_motion is not None:
             result.motion.save(tmps[1])
     wrote = ", ".join(str(p) for _, p in outputs)
-    console.info(f"{_estimate_summary(result, args.method, max_blur, source)}; deconvolved "
-                 f"({args.deconvolution}) in {seconds:.1f} s; wrote {wrote}")
+    done = ("not deconvolved" if result.info.no_blur else
+            f"deconvolved ({args.deconvolution}) in {seconds:.1f} s")
+    console.info(f"{_estimate_summary(result, args.method, max_blur, source)}; {done}; "
+                 f"wrote {wrote}")
     return EXIT_OK
 
 

@@ -341,6 +341,9 @@ class CameraMotionWidget(QWidget):
         self._last_name = image.name
         self.save_button.setEnabled(True)
         self._plot_motion(motion)
+        if info.no_blur:
+            return (f"no blur found ({info.seconds:.1f} s): the motion is the identity. If the "
+                    "photo is blurred, try a larger max blur or another model")
         text = (f"{motion.n_poses} poses, blur up to {motion.blur_extent():.1f} px "
                 f"({info.seconds:.1f} s)")
         if info.message.startswith("fell back"):

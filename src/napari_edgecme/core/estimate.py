@@ -711,6 +711,9 @@ def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: floa
            deconv_params: dict | None = None, callback=None, **params):
     """Estimate the camera motion, then deconvolve the image with it at full resolution.
 
+    When no blur is found (``estimate.info.no_blur``, with a warning) the image is not
+    deconvolved: ``restored`` is the input as floating point, unchanged.
+
     Returns
     -------
     restored : ndarray, float32 in [0, 1], shaped like ``image``
@@ -726,6 +729,8 @@ def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: floa
     _check_params(deconvolution, dict(deconv_params or {}))
     estimate = estimate_motion(image, method, model, max_blur, focal_px, callback=callback,
                                **params)
+    if estimate.info.no_blur:  # nothing to undo: the photo comes back unchanged
+        return as_float_image(image, allow_rgb=True), estimate
     restored = deconvolve(image, estimate.motion, deconvolution, callback=callback,
                           **(deconv_params or {}))
     return restored, estimate
