@@ -378,7 +378,11 @@ def test_negative_values_of_signed_integers_clip_to_black():
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_every_common_dtype_runs_estimation_and_deconvolution(small, dtype):
     image = in_dtype(small.blurred, dtype)
-    est = estimate_motion(image, "xu", "translation", max_blur=3, **FAST)
+    if dtype == "bool":  # thresholding re-sharpens the blurred edges: there is no blur left
+        with pytest.warns(UserWarning, match="no blur found"):
+            est = estimate_motion(image, "xu", "translation", max_blur=3, **FAST)
+    else:
+        est = estimate_motion(image, "xu", "translation", max_blur=3, **FAST)
     out = deconvolve(image, est.motion, "wiener")
     assert out.dtype == (np.float64 if dtype == "float64" else np.float32)
     assert out.shape == image.shape and np.all(np.isfinite(out))

@@ -340,7 +340,7 @@ def _run_real_photo(photo: dict, workdir: Path, sheets: Path, methods, log) -> d
         run = row["runs"].get(method, {})
         if run.get("status") != 0:
             why = (run.get("stderr") or ["failed"])[-1].removeprefix("edgecme: ")
-            return f"failed: {why[:60]}"
+            return f"failed: {why[:110]}"
         return f"blur {run['extent']:.1f} px, {run['poses']} poses, {run['seconds']:.0f} s"
 
     panels = [("input", read_rgb(photo["input"]))]

@@ -485,8 +485,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         if extent < COLLAPSE_EXTENT or info.blind_cost > _NO_BLUR_RATIO * info.identity_cost:
             info.no_blur = True
             why = (f"the estimate collapsed to {extent:.1f} px" if extent < COLLAPSE_EXTENT
-                   else f"a sharp image explains the photo better than the {extent:.1f} px "
-                        f"blur found (L0 cost {info.blind_cost:.3g} vs {info.identity_cost:.3g})")
+                   else f"the {extent:.1f} px blur estimated explains the photo worse than no "
+                        f"blur at all (L0 cost {info.blind_cost:.3g} vs {info.identity_cost:.3g})")
             info.message += f"; no blur found ({why})"
             warnings.warn(f"no blur found: {why}; returning the identity motion. If the photo "
                           "is blurred, try a larger max blur or another model",
