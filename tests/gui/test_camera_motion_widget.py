@@ -200,3 +200,15 @@ def test_psf_grid_has_square_cells():
     assert psf_grid((100, 100)) == (5, 5)
     assert psf_grid((300, 400)) == (5, 7)
     assert psf_grid((400, 300)) == (7, 5)
+
+
+def test_a_sharp_image_reads_no_blur_found_in_the_status(qtbot, viewer_model, edge_case,
+                                                          wait_for_run):
+    image = viewer_model.add_image(edge_case.sharp, name="sharp")
+    widget = make_widget(qtbot, viewer_model, image, n_iter=2)
+    widget.run_button.click()
+    wait_for_run(widget)
+    assert widget.runner.outcome == "done"
+    assert widget.last_estimate.info.no_blur
+    assert widget.status.text().startswith("Camera motion: no blur found")
+    assert "larger max blur" in widget.status.text()
