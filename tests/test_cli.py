@@ -546,3 +546,19 @@ def test_the_cli_demo_and_bench_load_no_qt():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120)
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_deblur_of_a_sharp_photo_says_no_blur_found_and_writes_it_unchanged(cd, capsys):
+    status, _, err = run(["deblur", "sharp.png", "-o", "out.png", "--method", "xu", "--model",
+                          "inplane", "--max-blur", "11", *FAST], capsys)
+    assert status == 0, err
+    assert any(line.startswith("edgecme: warning: no blur found") for line in err)
+    assert "no blur found" in err[-1] and "not deconvolved" in err[-1]
+    np.testing.assert_array_equal(read_image("out.png"), read_image("sharp.png"))
+
+
+def test_bench_data_applies_to_the_suites_only(cd, capsys):
+    status, _, err = run(["bench", "--data", "somewhere"], capsys)
+    assert status == 2 and len(err) == 1 and "--data applies to the lai, levin and real" in err[0]
+    status, _, err = run(["bench", "--suite", "lai", "--data", "missing-folder"], capsys)
+    assert status == 2 and len(err) == 1 and "no data for suite 'lai'" in err[0]
