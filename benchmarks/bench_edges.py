@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from napari_edgecme.core.edges import extract_edge_profiles, srgb_to_linear
+from napari_edgecme.core.metrics import profile_fidelity
 from napari_edgecme.core.synth import add_noise, make_case, quantize, render_blur, sample_image
 
 OUT = Path(__file__).with_name("out")
@@ -53,29 +54,6 @@ def timed(image, max_blur, repeat):
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
     return prof, statistics.median(wall), statistics.median(cpu)
-
-
-def projection_ncc(motion, prof, size=61):
-    """NCC of each derivative with the true PSF's projection on its normal (Eq. 11)."""
-    psfs = motion.psf(prof.centroids, size)
-    half = (size - 1) // 2
-    v, u = np.mgrid[-half:half + 1, -half:half + 1]
-    out = np.empty(len(prof))
-    for i, (k, phi) in enumerate(zip(psfs, prof.normal_angle, strict=True)):
-        rho = (u * np.cos(phi) + v * np.sin(phi)).ravel()
-        w = k.ravel()
-        rho = rho - rho @ w / w.sum()
-        hist = np.zeros(prof.offsets.size)
-        pos = rho - prof.offsets[0]
-        j = np.floor(pos).astype(int)
-        f = pos - j
-        for jj, ww in ((j, (1 - f) * w), (j + 1, f * w)):
-            ok = (jj >= 0) & (jj < hist.size)
-            np.add.at(hist, jj[ok], ww[ok])
-        a = prof.derivatives[i] - prof.derivatives[i].mean()
-        b = hist - hist.mean()
-        out[i] = a @ b / np.sqrt((a @ a) * (b @ b))
-    return out
 
 
 def overlay(image, prof, path, title):
@@ -147,7 +125,7 @@ def main(argv=None) -> None:
                     if not len(prof):
                         lines.append(f"| {name} | {model}, {extent} px | {label} | 0 | - | - | - |")
                         continue
-                    ncc = projection_ncc(case.motion, prof)
+                    ncc = profile_fidelity(prof, case.motion)[0]
                     lines.append(f"| {name} | {model}, {extent} px | {label} | {len(prof)} | "
                                  f"{np.median(ncc):.3f} | {np.percentile(ncc, 10):.3f} | "
                                  f"{np.mean(ncc < 0.7):.2f} |")

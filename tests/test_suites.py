@@ -56,7 +56,7 @@ def test_levin_suite_reads_a_capture_and_its_correlation_kernel(tmp_path):
     from napari_edgecme.core.operators import blur
 
     assert np.abs(blur(sharp, motion, "exact") - blurred)[8:-8, 8:-8].max() < 1e-6
-    md, js = _suites.run_suite("levin", tmp_path / "out", data=data, methods=("xu",),
+    md, _ = _suites.run_suite("levin", tmp_path / "out", data=data, methods=("xu",),
                                n_iter=1)
     assert "anchor protocol" in md.read_text()
 

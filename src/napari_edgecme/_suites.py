@@ -51,8 +51,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ._bench import (_f, _machine_line, _mean, _median, load_average, machine_info,
-                     markdown_table, run_job)
+from ._bench import (
+    _f,
+    _machine_line,
+    _mean,
+    _median,
+    load_average,
+    machine_info,
+    markdown_table,
+    run_job,
+)
 
 __all__ = ["SUITES", "default_data_dir", "run_suite"]
 
