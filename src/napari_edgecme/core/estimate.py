@@ -94,6 +94,8 @@ _RESTART_LAMBDA_F = 3.0
 #: "No blur found" when the L0 cost of the estimate exceeds the identity's by this factor
 #: (:func:`blind_costs`).
 _NO_BLUR_RATIO = 1.5
+#: Smallest interior side (px) on which :func:`blind_costs` compares the two costs.
+_MIN_INTERIOR = 16
 
 
 @dataclass
@@ -402,9 +404,10 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     work_shape = tuple(max(8, round(s * work_scale)) for s in shape)
     work_raw = _resize(gray, work_shape)
     offset, gain = _contrast_gain(work_raw)
-    if method == "xu" and float(np.ptp(work_raw)) < 1e-6:  # ep, xu+ep say it with profiles
+    constant = float(np.ptp(work_raw)) < 1e-6
+    if method == "xu" and constant:  # ep, xu+ep say it with profiles
         warnings.warn("the image is constant: there is no blur to estimate (returning "
-                      "the best guess, a small blob)", UserWarning, stacklevel=2)
+                      "the identity motion)", UserWarning, stacklevel=2)
     work = ((work_raw - offset) * gain).astype(work_raw.dtype)
     intr_work = intr_full.rescaled(work_shape)
     blur_work = max_blur * work_scale
@@ -457,7 +460,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         motion, latent, step = yield from run.iterate(step, total)
         # -- collapse to no blur: restart once from a wide motion, with a stronger L0
         # weight (the sharp-edged latent then has to be explained by the blur)
-        if motion.blur_extent() < COLLAPSE_EXTENT:
+        if motion.blur_extent() < COLLAPSE_EXTENT and not constant:
             info.restarts += 1
             extent = motion.blur_extent()
             total += sum(level_iters)
@@ -482,7 +485,14 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                        n_scales=len(scales))
         extent = motion.blur_extent()
         info.blind_cost, info.identity_cost = blind_costs(run.finest, motion, lambda_f)
-        if extent < COLLAPSE_EXTENT or info.blind_cost > _NO_BLUR_RATIO * info.identity_cost:
+        # the cost test needs an image with structure (a constant one costs ~0 either way)
+        comparable = math.isfinite(info.identity_cost) and info.identity_cost > 1e-12
+        if constant:  # said above (Xu) or by the edge profiles (EpAlone, Xu+Ep)
+            info.no_blur = True
+            info.message += "; no blur found (the image is constant)"
+            motion = CameraMotion.identity(model, intr_work)
+        elif extent < COLLAPSE_EXTENT or (
+                comparable and info.blind_cost > _NO_BLUR_RATIO * info.identity_cost):
             info.no_blur = True
             why = (f"the estimate collapsed to {extent:.1f} px" if extent < COLLAPSE_EXTENT
                    else f"the {extent:.1f} px blur estimated explains the photo worse than no "
@@ -584,16 +594,20 @@ def blind_costs(level: _Level, motion: CameraMotion, lambda_f: float) -> tuple[f
     Returns
     -------
     (cost of ``motion``, cost of the identity)
+        Both NaN when the level has no interior left to compare on (an image not much
+        larger than its blur).
     """
     from .latent import l0_latent
     from .operators import blur
 
     g = level.blurred
+    band = motion.rescale(level.shape).psf_size() // 2 + 2
+    if min(g.shape) - 2 * band < _MIN_INTERIOR:
+        return float("nan"), float("nan")
+    inner = (slice(band, -band), slice(band, -band))
 
     def cost(k: CameraMotion) -> float:
         f, (gx, gy) = l0_latent(g, k, lambda_f, return_gradients=True)
-        band = max(k.psf_size(), motion.psf_size()) // 2 + 2
-        inner = (slice(band, -band), slice(band, -band))
         residual = blur(f, k)[inner] - g[inner]
         nonzero = (gx[inner] ** 2 + gy[inner] ** 2) > 0
         return float(np.mean(residual.astype(np.float64) ** 2) + lambda_f * np.mean(nonzero))
