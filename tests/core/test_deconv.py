@@ -313,9 +313,9 @@ def test_closing_the_generator_stops_work_promptly(monkeypatch):
     gen = iter_deconvolve(image, motion)
     for _ in range(5):
         next(gen)
-    t = time.perf_counter()
+    t = time.process_time()  # CPU seconds of this process: not inflated by a shared machine
     gen.close()
-    assert time.perf_counter() - t < 1.0
+    assert time.process_time() - t < 1.0
     n = len(solves)
     with pytest.raises(StopIteration):
         next(gen)
@@ -323,15 +323,17 @@ def test_closing_the_generator_stops_work_promptly(monkeypatch):
 
 
 def test_time_between_records_is_short_on_a_large_image():
-    # cancel latency: no gap between records longer than about a second
+    # cancel latency: no gap between records longer than about a second of work. Measured
+    # in CPU seconds of this process (all its threads), which other processes on a shared
+    # machine do not inflate the way they inflate wall-clock time.
     cam = Intrinsics.from_image_shape((1500, 1500))
     motion = densify_path(random_trajectory("rotation", cam, 21, 24, rng=0), "rotation", cam)
     image = np.full((1500, 1500), 0.5, np.float32)
     gen = iter_deconvolve(image, motion)
-    gaps, last = [], time.perf_counter()
+    gaps, last = [], time.process_time()
     for _ in range(12):
         next(gen)
-        now = time.perf_counter()
+        now = time.process_time()
         gaps.append(now - last)
         last = now
     gen.close()
