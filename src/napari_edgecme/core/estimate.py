@@ -460,9 +460,9 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         motion, latent, step = yield from run.iterate(step, total)
         # -- collapse to no blur: restart once from a wide motion, with a stronger L0
         # weight (the sharp-edged latent then has to be explained by the blur)
-        if motion.blur_extent() < COLLAPSE_EXTENT and not constant:
+        extent = motion.blur_extent()
+        if extent < COLLAPSE_EXTENT and not constant:
             info.restarts += 1
-            extent = motion.blur_extent()
             total += sum(level_iters)
             yield Progress("estimate", step, total, f"no blur found (extent {extent:.1f} px): "
                            "restarting from a wider motion", n_scales=len(scales))
@@ -484,23 +484,25 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         yield Progress("estimate", step, total, "checking the estimate against no blur",
                        n_scales=len(scales))
         extent = motion.blur_extent()
-        info.blind_cost, info.identity_cost = blind_costs(run.finest, motion, lambda_f)
-        # the cost test needs an image with structure (a constant one costs ~0 either way)
-        comparable = math.isfinite(info.identity_cost) and info.identity_cost > 1e-12
         if constant:  # said above (Xu) or by the edge profiles (EpAlone, Xu+Ep)
             info.no_blur = True
             info.message += "; no blur found (the image is constant)"
-            motion = CameraMotion.identity(model, intr_work)
-        elif extent < COLLAPSE_EXTENT or (
-                comparable and info.blind_cost > _NO_BLUR_RATIO * info.identity_cost):
-            info.no_blur = True
-            why = (f"the estimate collapsed to {extent:.1f} px" if extent < COLLAPSE_EXTENT
-                   else f"the {extent:.1f} px blur estimated explains the photo worse than no "
-                        f"blur at all (L0 cost {info.blind_cost:.3g} vs {info.identity_cost:.3g})")
-            info.message += f"; no blur found ({why})"
-            warnings.warn(f"no blur found: {why}; returning the identity motion. If the photo "
-                          "is blurred, try a larger max blur or another model",
-                          UserWarning, stacklevel=2)
+        else:
+            info.blind_cost, info.identity_cost = blind_costs(run.finest, motion, lambda_f)
+            # the cost test needs an image with structure and an interior to compare on
+            comparable = math.isfinite(info.identity_cost) and info.identity_cost > 1e-12
+            if extent < COLLAPSE_EXTENT or (
+                    comparable and info.blind_cost > _NO_BLUR_RATIO * info.identity_cost):
+                info.no_blur = True
+                why = (f"the estimate collapsed to {extent:.1f} px" if extent < COLLAPSE_EXTENT
+                       else f"the {extent:.1f} px blur estimated explains the photo worse than "
+                            f"no blur at all (L0 cost {info.blind_cost:.3g} vs "
+                            f"{info.identity_cost:.3g})")
+                info.message += f"; no blur found ({why})"
+                warnings.warn(f"no blur found: {why}; returning the identity motion. If the "
+                              "photo is blurred, try a larger max blur or another model",
+                              UserWarning, stacklevel=2)
+        if info.no_blur:
             motion = CameraMotion.identity(model, intr_work)
 
     # -- result at the input's own size ----------------------------------------------
