@@ -295,7 +295,7 @@ def _job_estimate(job: dict) -> dict:
     out = {"estimate_s": time.perf_counter() - t0, "estimate_cpu_s": time.process_time() - c0,
            "n_profiles": est.info.n_profiles, "poses": est.motion.n_poses,
            "message": est.info.message, "converged": est.info.converged,
-           "method_run": est.info.method, "no_blur": bool(getattr(est.info, "no_blur", False))}
+           "method_run": est.info.method, "no_blur": est.info.no_blur}
     if job.get("motion"):
         est.motion.save(job["motion"])
     if job.get("restored"):
@@ -367,12 +367,19 @@ def _worker_main() -> None:
     print(_MARKER + json.dumps(result), flush=True)
 
 
-def run_job(job: dict, timeout: float) -> dict:
-    """Run ``job`` in a fresh Python process; a failure comes back as ``{"ok": False, ...}``."""
+def worker_env() -> dict:
+    """The environment of a worker process: this one's, with this package first on the path
+    (a worker runs the same code as its parent, whatever is installed)."""
     env = os.environ.copy()
     package_root = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"]
                                         if env.get("PYTHONPATH") else "")
+    return env
+
+
+def run_job(job: dict, timeout: float) -> dict:
+    """Run ``job`` in a fresh Python process; a failure comes back as ``{"ok": False, ...}``."""
+    env = worker_env()
     t0 = time.perf_counter()
     try:
         proc = subprocess.run([sys.executable, "-m", "napari_edgecme._bench"],

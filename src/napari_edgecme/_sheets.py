@@ -44,48 +44,37 @@ _TITLE_BAND = 34  # height of the figure title band (px)
 _NONE_GREY = "0.82"
 #: Outline colours of the crops (bright, visible on most photos), cycled.
 _CROP_COLOURS = ("#ff2d55", "#ffd60a", "#30d5ff", "#7cff4f", "#ff9f0a", "#bf5af2")
-_LUMA = np.array([0.299, 0.587, 0.114])
 
 
 # ----------------------------------------------------------------------------- helpers
 
 
 def _to_unit(image) -> np.ndarray:
-    """An image as float in [0, 1]: (H, W) gray or (H, W, 3) RGB.
+    """An image as float in [0, 1] for display: (H, W) gray or (H, W, 3) RGB.
 
-    Integers are scaled by their dtype's maximum (uint8 by 255), floats are clipped to
-    [0, 1] with NaN as 0, (H, W, 1) becomes (H, W), gray+alpha keeps the gray plane
-    and RGBA drops the alpha. float64 input stays float64, anything else is float32.
+    The engine's float policy (:func:`~.core._validation.as_float_image`: integers scaled
+    by their dtype's maximum, float64 kept, anything else float32), any finite range
+    accepted and clipped to [0, 1] with NaN as 0; (H, W, 1) and gray+alpha keep the gray
+    plane and RGBA drops the alpha.
     """
+    from .core._validation import as_float_image
+
     arr = np.asarray(image)
-    if arr.ndim == 3 and arr.shape[2] == 1:
-        arr = arr[:, :, 0]
-    elif arr.ndim == 3 and arr.shape[2] == 2:
+    if arr.ndim == 3 and arr.shape[2] in (1, 2):
         arr = arr[:, :, 0]
     elif arr.ndim == 3 and arr.shape[2] == 4:
         arr = arr[:, :, :3]
-    if not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] == 3)):
-        raise ValueError(f"expected an image of shape (H, W) or (H, W, 3), got {arr.shape}")
-    if arr.shape[0] < 1 or arr.shape[1] < 1:
-        raise ValueError(f"expected a non-empty image, got shape {arr.shape}")
-    if arr.dtype == np.bool_:
-        return arr.astype(np.float32)
-    if np.issubdtype(arr.dtype, np.integer):
-        top = float(np.iinfo(arr.dtype).max)
-        return np.clip(arr.astype(np.float32) / top, 0.0, 1.0)
-    if not np.issubdtype(arr.dtype, np.floating):
-        raise ValueError(f"expected a numeric image, got dtype {arr.dtype}")
-    out = arr.astype(np.float64 if arr.dtype == np.float64 else np.float32, copy=True)
-    np.nan_to_num(out, copy=False, nan=0.0, posinf=1.0, neginf=0.0)
+    if np.issubdtype(arr.dtype, np.floating):
+        arr = np.nan_to_num(arr, nan=0.0, posinf=1.0, neginf=0.0)
+    out = as_float_image(arr, "panel", allow_rgb=True, min_size=1, check_range=False)
     return np.clip(out, 0.0, 1.0, out=out)
 
 
 def _luminance(image) -> np.ndarray:
-    """The float64 luminance (Rec. 601 weights) of a gray or RGB image, shape (H, W)."""
-    arr = _to_unit(image)
-    if arr.ndim == 3:
-        return arr.astype(np.float64) @ _LUMA
-    return arr.astype(np.float64)
+    """The float64 luminance (the engine's Rec. 709 weights) of a gray or RGB image, (H, W)."""
+    from .core.edges import to_luminance
+
+    return to_luminance(_to_unit(image)).astype(np.float64)
 
 
 def _default_crop_size(shape: tuple[int, int]) -> int:
@@ -466,7 +455,7 @@ def read_rgb(path) -> np.ndarray:
     Parameters
     ----------
     path : path-like
-        A file imageio can read (JPEG, PNG, BMP, ...): gray ("L"), gray+alpha,
+        An image file the engine reads (JPEG, PNG, BMP, TIFF, ...): gray ("L"), gray+alpha,
         palette, RGB or RGBA, 8 or 16 bit. A multi-frame file gives its first frame.
         EXIF orientation is not applied (the same pixels the engine reads).
 
@@ -476,9 +465,9 @@ def read_rgb(path) -> np.ndarray:
         Gray is replicated to the three channels, alpha is dropped, integers are
         scaled by their dtype's maximum (uint8 by 255, uint16 by 65535).
     """
-    import imageio.v3 as iio
+    from .core.io import read_image
 
-    arr = np.asarray(iio.imread(path))
+    arr = read_image(path)  # one-line errors naming the file
     if arr.ndim == 4:  # an animation (GIF): frames first
         arr = arr[0]
     out = _to_unit(arr).astype(np.float32, copy=False)

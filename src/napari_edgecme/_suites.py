@@ -39,7 +39,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
 import re
 import statistics
 import subprocess
@@ -60,6 +59,7 @@ from ._bench import (
     machine_info,
     markdown_table,
     run_job,
+    worker_env,
 )
 
 __all__ = ["SUITES", "default_data_dir", "run_suite"]
@@ -280,20 +280,11 @@ def _run_truth_case(case: dict, suite: str, workdir: Path, methods, n_iter, log)
 
 def _levin_protocol_psnr(image, sharp) -> float:
     """PSNR under the anchor protocol of the levin README (1/10 px shift, 24 px border)."""
-    from scipy import ndimage
-    from skimage.registration import phase_cross_correlation
+    from .core.metrics import align_to, psnr
 
-    from .core.metrics import psnr
-
-    a = np.asarray(image, np.float64)
-    b = np.asarray(sharp, np.float64)
-    shift, _, _ = phase_cross_correlation(b, a, upsample_factor=LEVIN_ANCHOR_UPSAMPLE,
-                                          normalization=None)
-    if np.max(np.abs(shift)) > 0.1 * min(a.shape):
-        shift = np.zeros(2)
-    a = np.clip(ndimage.shift(a, shift, order=3, mode="nearest"), 0, 1)
+    shifted, _ = align_to(image, sharp, upsample=LEVIN_ANCHOR_UPSAMPLE)
     c = LEVIN_ANCHOR_BORDER
-    return psnr(a[c:-c, c:-c], b[c:-c, c:-c])
+    return psnr(np.clip(shifted, 0, 1)[c:-c, c:-c], np.asarray(sharp, np.float64)[c:-c, c:-c])
 
 
 def _label(key: str) -> str:
@@ -308,14 +299,10 @@ _PROFILES_RE = re.compile(r"(\d+) edge profiles")
 
 
 def _run_cli(args: list[str], timeout: float) -> dict:
-    env = os.environ.copy()
-    package_root = str(Path(__file__).resolve().parents[1])
-    env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"]
-                                        if env.get("PYTHONPATH") else "")
     t0 = time.perf_counter()
     try:
         proc = subprocess.run([sys.executable, "-m", "napari_edgecme", *args],
-                              capture_output=True, text=True, timeout=timeout, env=env,
+                              capture_output=True, text=True, timeout=timeout, env=worker_env(),
                               check=False, stdin=subprocess.DEVNULL)
     except subprocess.TimeoutExpired:
         return {"status": None, "seconds": timeout, "stderr": [f"timed out after {timeout} s"]}

@@ -40,12 +40,13 @@ def psnr(result, reference, data_range: float = 1.0) -> float:
     return float(10 * np.log10(data_range**2 / max(mse, 1e-20)))
 
 
-def align_to(result, reference, max_shift: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def align_to(result, reference, max_shift: float | None = None, *,
+             upsample: int = 20) -> tuple[np.ndarray, np.ndarray]:
     """Shift ``result`` onto ``reference`` by the global sub-pixel translation between them.
 
-    Returns the shifted result and the shift ``(drow, dcol)`` that was applied.
-    A shift larger than ``max_shift`` (default: 10% of the smaller side) is taken
-    as a failed registration and not applied.
+    Returns the shifted result and the shift ``(drow, dcol)`` that was applied, found by
+    phase correlation to ``1/upsample`` px. A shift larger than ``max_shift`` (default:
+    10% of the smaller side) is taken as a failed registration and not applied.
     """
     from skimage.registration import phase_cross_correlation
 
@@ -53,7 +54,7 @@ def align_to(result, reference, max_shift: float | None = None) -> tuple[np.ndar
     b = np.asarray(reference, np.float64)
     gray_a = a if a.ndim == 2 else a.mean(-1)
     gray_b = b if b.ndim == 2 else b.mean(-1)
-    shift, _, _ = phase_cross_correlation(gray_b, gray_a, upsample_factor=20,
+    shift, _, _ = phase_cross_correlation(gray_b, gray_a, upsample_factor=upsample,
                                           normalization=None)
     if max_shift is None:
         max_shift = 0.1 * min(gray_a.shape)
@@ -71,8 +72,7 @@ def _rotate(a: np.ndarray, degrees: float) -> np.ndarray:
     """``a`` rotated by ``degrees`` about its centre (cubic, same shape)."""
     if degrees == 0:
         return a
-    axes = (1, 0)
-    return ndimage.rotate(a, degrees, axes=axes, reshape=False, order=3, mode="nearest")
+    return ndimage.rotate(a, degrees, axes=(1, 0), reshape=False, order=3, mode="nearest")
 
 
 def _shift_pair(result, reference, border, rotation_deg=0.0):
@@ -131,11 +131,7 @@ def aligned_psnr(result, reference, border: int | None = None, *,
 def aligned_ssim(result, reference, border: int | None = None, *,
                  rotation: bool = False) -> float:
     """SSIM after global sub-pixel alignment and a border crop (see module notes)."""
-    from skimage.metrics import structural_similarity
-
-    a, b = _aligned_pair(result, reference, border, rotation)
-    return float(structural_similarity(a, b, data_range=1.0,
-                                       channel_axis=-1 if a.ndim == 3 else None))
+    return aligned_scores(result, reference, border, rotation=rotation)[1]
 
 
 def aligned_scores(result, reference, border: int | None = None, *,
