@@ -71,7 +71,7 @@ def fista_trace(term, lam, n, max_iter, L):
     trace = []
     t0 = time.perf_counter()
     nonneg_lasso(term, lam, np.full(n, 1.0 / n), max_iter=max_iter, tol=0.0, lipschitz=L,
-                 callback=lambda x: trace.append((time.perf_counter() - t0, x.copy())))
+                 callback=lambda r: trace.append((time.perf_counter() - t0, r.iterate.copy())))
     return trace
 
 

@@ -28,8 +28,28 @@ def test_nonneg_lasso_satisfies_the_kkt_conditions(rng):
     assert set(np.argsort(res.x)[-3:]) == {3, 17, 29}
     seen = []
     again = nonneg_lasso(term, lam, np.zeros(40), max_iter=50, tol=1e-10,
-                         callback=lambda w: seen.append(w.copy()))
+                         callback=lambda record: seen.append(record.iterate.copy()))
     assert len(seen) == again.nit and np.array_equal(seen[-1], again.x)
+
+
+def test_a_callback_stops_the_lasso_with_the_current_iterate(rng):
+    A = rng.standard_normal((60, 30))
+    y = A @ np.abs(rng.standard_normal(30))
+    term = QuadraticTerm(lambda w: A.T @ (A @ w), A.T @ y, float(y @ y))
+    full = nonneg_lasso(term, 0.1, np.zeros(30), max_iter=100, tol=0.0)
+    assert full.nit > 7  # uninterrupted, it runs on
+    seen = []
+
+    def stop_at_seven(record):
+        seen.append(record.iterate.copy())
+        if record.step == 7:
+            raise StopIteration
+
+    stopped = nonneg_lasso(term, 0.1, np.zeros(30), max_iter=100, tol=0.0,
+                           callback=stop_at_seven)
+    assert stopped.nit == 7 and not stopped.converged and "stopped" in stopped.message
+    np.testing.assert_array_equal(stopped.x, seen[-1])
+    assert not np.array_equal(stopped.x, full.x)
 
 
 @pytest.fixture(scope="module")

@@ -110,7 +110,7 @@ from .deconv_solvers import (
 )
 from .motion import CameraMotion, psf_size_for
 from .operators import PatchGrid
-from .progress import Progress, StopRequested, drive
+from .progress import Progress, StopRequested, drive, stop
 
 __all__ = ["DEFAULTS", "METHODS", "SOLVERS", "deconvolve", "iter_deconvolve"]
 
@@ -402,30 +402,36 @@ class _BlockPlan:
 
 
 def _block_solver(method: str, opts: dict):
-    """``(iterations per block and channel, start(domain, fourier, g, state) -> generator)``."""
+    """``(iterations per block and channel, start(domain, fourier, g) -> solver generator)``."""
     if method == "hyperlaplacian":
         betas = _betas(opts)
 
-        def start(domain, fourier, g, state):
+        def start(domain, fourier, g):
             return hyperlaplacian_steps(
                 domain, g, lam=opts["lam"], alpha=opts["alpha"], betas=betas,
                 inner_iterations=opts["inner_iterations"], solver=opts["solver"],
                 fourier=fourier, cg_iterations=opts["cg_iterations"], cg_tol=opts["cg_tol"],
-                border_iterations=FOURIER_BORDER_ITERATIONS["hyperlaplacian"], state=state)
+                border_iterations=FOURIER_BORDER_ITERATIONS["hyperlaplacian"])
         return len(betas) * opts["inner_iterations"], start
     if method == "rl":
-        def start(domain, fourier, g, state):
-            return richardson_lucy_steps(domain, g, iterations=opts["iterations"], state=state)
+        def start(domain, fourier, g):
+            return richardson_lucy_steps(domain, g, iterations=opts["iterations"])
         return opts["iterations"], start
 
-    def start(domain, fourier, g, state):
+    def start(domain, fourier, g):
         return wiener(domain, g, nsr=opts["nsr"], fourier=fourier,
-                      border_iterations=FOURIER_BORDER_ITERATIONS["wiener"], state=state)
+                      border_iterations=FOURIER_BORDER_ITERATIONS["wiener"])
     return 1, start
 
 
 def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
-    """The block loop behind :func:`iter_deconvolve` (inputs already validated)."""
+    """The block loop behind :func:`iter_deconvolve` (inputs already validated).
+
+    Each block and channel is one solver generator of
+    :mod:`~napari_edgecme.core.deconv_solvers`; its records become ``"deconvolve"``
+    records with the step counted over the whole image, and a stop request is passed
+    on to it (:func:`~napari_edgecme.core.progress.stop`) for its current iterate.
+    """
     dtype = img.dtype
     H, W = img.shape[:2]
     channels = [img] if img.ndim == 2 else [img[..., c] for c in range(img.shape[2])]
@@ -440,21 +446,22 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
     per, start = _block_solver(method, opts)
     total = nb * nc * per
     out = np.zeros((nc, H, W), dtype)
-    state: dict = {}  # the running solver's current iterate, state["x"]
     step = 0
     current = (0, -1)  # (block, channel) being solved; earlier pairs are in ``out``
+    solver = None  # the running block's solver generator, None between solvers
     inner = None
 
-    def assemble() -> np.ndarray:
-        """Finished blocks, the running block's iterate, and the input where nothing ran."""
+    def assemble(iterate: np.ndarray | None) -> np.ndarray:
+        """Finished blocks, the running block's ``iterate`` (on its domain), and the input
+        where nothing ran."""
         res = out.copy()
         for b, blk in enumerate(plan.blocks):
             r0, r1, c0, c1 = blk["box"]
             for c in range(nc):
                 if (b, c) < current:
                     continue
-                if (b, c) == current and "x" in state:
-                    plan.add(res[c], blk, state["x"][inner])
+                if (b, c) == current and iterate is not None:
+                    plan.add(res[c], blk, iterate[inner])
                 else:
                     plan.add(res[c], blk, channels[c][r0:r1, c0:c1])
         return _as_output(res, img.ndim, dtype)
@@ -472,30 +479,28 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
             r0, r1, c0, c1 = blk["box"]
             for c in range(nc):
                 current = (b, c)
-                state.clear()
                 where = where_b + (f"channel {c + 1}/{nc}, " if nc > 1 else "")
-                gen = start(domain, fourier, np.ascontiguousarray(channels[c][r0:r1, c0:c1]),
-                            state)
-                k = 0
+                solver = start(domain, fourier, np.ascontiguousarray(channels[c][r0:r1, c0:c1]))
+                k = 0  # the solver's finished iterations
                 while True:
                     try:
-                        kind, info = next(gen)
+                        record = next(solver)
                     except StopIteration as done:
                         x = done.value
                         break
                     preview = None
-                    if kind == "iteration":
-                        step += 1
-                        k += 1
+                    if record.step > k:
+                        step += record.step - k
+                        k = record.step
                         if opts["preview"]:
-                            preview = assemble()
-                    yield Progress("deconvolve", step, total,
-                                   _message(method, where, k, per, info), iteration=k,
-                                   preview=preview)
+                            preview = assemble(record.iterate)
+                    yield Progress("deconvolve", step, total, where + record.message,
+                                   iteration=k, preview=preview)
+                solver = None
                 plan.add(out[c], blk, x[domain.inner])
             current = (b + 1, -1)
     except StopRequested:
-        result = assemble()
+        result = assemble(stop(solver) if solver is not None else None)
         try:
             yield Progress("deconvolve", step, total,
                            f"stopped by request after {step}/{total} iterations; returning "
@@ -503,6 +508,9 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
         except StopRequested:
             pass
         return result
+    finally:
+        if solver is not None:
+            solver.close()
     return _as_output(out, img.ndim, dtype)
 
 
@@ -510,17 +518,3 @@ def _as_output(planes: np.ndarray, ndim: int, dtype) -> np.ndarray:
     """(C, H, W) planes -> (H, W) or (H, W, C), clipped to [0, 1], contiguous."""
     res = planes[0] if ndim == 2 else np.moveaxis(planes, 0, -1)
     return np.ascontiguousarray(np.clip(res, 0, 1), dtype=dtype)
-
-
-def _message(method: str, where: str, k: int, per: int, info: dict) -> str:
-    """One line for a record; ``info`` is empty for records inside an iteration."""
-    name = {"hyperlaplacian": "half-quadratic step", "rl": "Richardson-Lucy iteration",
-            "wiener": "Wiener filter"}[method]
-    if "beta" in info:
-        return f"{where}{name} {k}/{per} done (beta {info['beta']:.3g})"
-    if "cg" in info:
-        return (f"{where}{name} {k + 1}/{per}: CG iteration {info['cg']}, "
-                f"relative residual {info['residual']:.1e}")
-    if info:
-        return f"{where}{name} {k}/{per} done"
-    return f"{where}{name} {k + 1}/{per} running"

@@ -23,10 +23,15 @@ Three solvers work on a :class:`LatentDomain`:
 * :func:`wiener` -- one patch-wise Fourier solve with a gradient (``1/|omega|^2``)
   image spectrum.
 
-They are generators: they yield ``(kind, info)`` tuples after each unit of work
-(``kind`` is ``"iteration"`` when an outer iteration has finished, ``"substep"``
-inside one) and return the latent estimate on the domain. The current iterate is
-also kept in ``state["x"]`` so that a caller stopping early can use it.
+They, and the inner solvers they run (:meth:`PatchFourier.solve`,
+:func:`conjugate_gradient`), are solver generators of the engine's one protocol
+(:mod:`napari_edgecme.core.progress`): they yield
+:class:`~napari_edgecme.core.progress.Progress` records -- ``step`` the finished
+iterations of ``total``, one record per unit of work, the current estimate in
+``iterate`` on the record that ends an iteration -- and return the latent estimate
+on the domain. Thrown :class:`~napari_edgecme.core.progress.StopRequested`, a method
+returns at once with its last finished iterate (its starting point before the
+first).
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from .deconv_prior import grad, grad_adjoint, shrink_hyperlaplacian, shrink_threshold
 from .motion import CameraMotion
 from .operators import FFT_WORKERS, EfficientFilterFlow
+from .progress import Progress, StopRequested, relay
 
 __all__ = [
     "LatentDomain",
@@ -309,7 +315,11 @@ class PatchFourier:
                     np.where(usable[sel], boxes[sel], 0))
 
     def solve(self, prior_rhs, lam: float, beta: float, border_iterations: int = 4):
-        """One image step; a generator yielding once per chunk of tiles, returning ``f``.
+        """One image step: a solver generator yielding a record per chunk of tiles.
+
+        Returns ``f`` (domain.shape). One closed-form step has no estimate of its own
+        before it ends: :class:`~napari_edgecme.core.progress.StopRequested` thrown in
+        propagates (the caller keeps its previous iterate).
 
         Parameters
         ----------
@@ -333,7 +343,8 @@ class PatchFourier:
         else:
             first = False
         results = []
-        for tile_rows, sl in self._chunks():
+        chunks = list(self._chunks())
+        for n_done, (tile_rows, sl) in enumerate(chunks):
             prior_hat = None
             if prior_view is not None:
                 prior_hat = self._rfft(self._take(prior_view, tile_rows))
@@ -351,21 +362,27 @@ class PatchFourier:
                 if prior_hat is not None:
                     rhs += prior_hat[sel]
                 start = xhat[sel] if first else self._x_border[pos]
-                xb = yield from self._masked_cg(sel + sl.start, pos, start, rhs, lam_c,
-                                                beta_c, inv_den[sel], border_iterations)
+
+                def relabel(record, n_done=n_done):
+                    return Progress("image step", n_done, len(chunks),
+                                    f"tile chunk {n_done + 1}/{len(chunks)}: {record.message}")
+                xb = yield from relay(self._masked_cg(sel + sl.start, pos, start, rhs, lam_c,
+                                                      beta_c, inv_den[sel], border_iterations),
+                                      relabel)
                 xhat[sel] = xb
                 self._x_border[pos] = xb
             boxes = self._irfft(xhat).astype(self.dtype, copy=False)
             results.append((range(sl.start, sl.stop), boxes))
-            yield
+            yield Progress("image step", n_done + 1, len(chunks),
+                           f"tile chunk {n_done + 1}/{len(chunks)} solved")
         return self._blend(results)
 
     def _masked_cg(self, rows, pos, x, rhs, lam, beta, inv_den, iterations):
         """Batched preconditioned CG for the border tiles' masked box problems, on spectra.
 
         ``A x = lam conj(k) F(M F^-1(k x)) + beta |d|^2 x``; preconditioner ``inv_den``
-        (the unmasked closed form). Each tile has its own step sizes. A generator that
-        yields after every iteration (for progress and cancel) and returns ``x``.
+        (the unmasked closed form). Each tile has its own step sizes. A solver generator
+        yielding a record after every iteration and returning ``x`` (the spectra).
         """
         khat = self.khat[rows]
         khat_conj = np.conj(khat)
@@ -390,7 +407,7 @@ class PatchFourier:
         _rv(z)[:] *= inv_den
         p = z.copy()
         rz = self._dot(r, z)
-        for _ in range(iterations):
+        for k in range(1, iterations + 1):
             ap = apply_a(p)
             pap = self._dot(p, ap)
             alpha = step(np.where(pap > 0, rz / np.where(pap > 0, pap, 1.0), 0.0))
@@ -402,7 +419,8 @@ class PatchFourier:
             _rv(p)[:] *= gamma
             _rv(p)[:] += _rv(z)
             rz = rz_new
-            yield
+            yield Progress("border CG", k, iterations,
+                           f"border tiles: CG iteration {k}/{iterations}", iteration=k)
         return x
 
 
@@ -414,8 +432,12 @@ def conjugate_gradient(apply_a, b: np.ndarray, x0: np.ndarray, iterations: int, 
                        precondition=None):
     """(Preconditioned) conjugate gradients for ``A x = b``, A symmetric positive definite.
 
-    A generator: yields ``(k, relative_residual)`` after each iteration and returns
-    ``x``. Stops when ``||b - A x|| <= tol ||b||`` or after ``iterations`` steps.
+    A solver generator (:mod:`~napari_edgecme.core.progress`): yields a record after
+    each iteration (``step`` ``k`` of ``total = iterations``, the relative residual in
+    the message, ``iterate`` the current ``x``, updated in place by the next
+    iteration) and returns ``x``; on
+    :class:`~napari_edgecme.core.progress.StopRequested` it returns ``x`` at once.
+    Stops when ``||b - A x|| <= tol ||b||`` or after ``iterations`` steps.
     ``precondition(r)`` applies a symmetric positive definite approximation of
     ``A^-1``. Inner products in float64.
     """
@@ -426,20 +448,25 @@ def conjugate_gradient(apply_a, b: np.ndarray, x0: np.ndarray, iterations: int, 
     rz = float(np.vdot(r, z))
     bnorm = math.sqrt(float(np.vdot(b, b))) or 1.0
     res = math.sqrt(float(np.vdot(r, r))) / bnorm
-    for k in range(1, iterations + 1):
-        if res <= tol:
-            break
-        ap = apply_a(p)
-        alpha = rz / max(float(np.vdot(p, ap)), 1e-300)
-        x += x.dtype.type(alpha) * p
-        r -= r.dtype.type(alpha) * ap
-        z = precondition(r) if precondition is not None else r
-        rz_new = float(np.vdot(r, z))
-        p *= p.dtype.type(rz_new / max(rz, 1e-300))
-        p += z
-        rz = rz_new
-        res = math.sqrt(float(np.vdot(r, r))) / bnorm
-        yield k, res
+    try:
+        for k in range(1, iterations + 1):
+            if res <= tol:
+                break
+            ap = apply_a(p)
+            alpha = rz / max(float(np.vdot(p, ap)), 1e-300)
+            x += x.dtype.type(alpha) * p
+            r -= r.dtype.type(alpha) * ap
+            z = precondition(r) if precondition is not None else r
+            rz_new = float(np.vdot(r, z))
+            p *= p.dtype.type(rz_new / max(rz, 1e-300))
+            p += z
+            rz = rz_new
+            res = math.sqrt(float(np.vdot(r, r))) / bnorm
+            yield Progress("conjugate gradients", k, iterations,
+                           f"CG iteration {k}, relative residual {res:.1e}", iteration=k,
+                           iterate=x)
+    except StopRequested:
+        pass
     return x
 
 
@@ -489,7 +516,7 @@ class CirculantPreconditioner:
 def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alpha: float,
                          betas, inner_iterations: int, solver: str,
                          fourier: PatchFourier | None, cg_iterations: int, cg_tol: float,
-                         border_iterations: int, state: dict, precondition: bool = True):
+                         border_iterations: int, precondition: bool = True):
     """Half-quadratic splitting for the hyper-Laplacian prior on one block (KF's algorithm).
 
     ``min_f lam/2 ||M T f - g||^2 + sum |D_x f|^alpha + |D_y f|^alpha``; for each
@@ -497,49 +524,58 @@ def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alp
     (:func:`~napari_edgecme.core.deconv_prior.shrink_hyperlaplacian`) on the current
     gradients, then the image step
     ``(lam T^T M^T M T + beta D^T D) f = lam T^T M^T g + beta D^T w`` by ``solver``.
+    A solver generator (module notes): ``len(betas) * inner_iterations`` iterations,
+    each one half-quadratic step.
     """
+    total = len(betas) * inner_iterations
+    name = "half-quadratic step"
+    k = 0  # finished half-quadratic steps
+
+    def running(record=None):
+        return Progress("hyperlaplacian", k, total, f"{name} {k + 1}/{total} running",
+                        iteration=k)
+
+    def cg_record(record):
+        return Progress("hyperlaplacian", k, total, f"{name} {k + 1}/{total}: {record.message}",
+                        iteration=k)
+
     x = domain.extend(g)
-    state["x"] = x
-    if solver == "fourier":
-        fourier.set_observation(g)
-        yield "substep", {}
-    else:
-        b_data = domain.data_adjoint(g) * domain.dtype.type(lam)
-        pre = CirculantPreconditioner(domain).operator if precondition else None
-        yield "substep", {}
-    for beta in betas:
-        thr = shrink_threshold(beta, alpha)
-        for it in range(inner_iterations):
-            gx, gy = grad(x)
-            wx = shrink_hyperlaplacian(gx, beta, alpha, thr)
-            del gx
-            wy = shrink_hyperlaplacian(gy, beta, alpha, thr)
-            del gy
-            prior_rhs = grad_adjoint(wx, wy)
-            prior_rhs *= domain.dtype.type(beta)
-            del wx, wy
-            yield "substep", {}
-            if solver == "fourier":
-                x = yield from _substeps(fourier.solve(prior_rhs, lam, beta, border_iterations))
-            else:
-                x = yield from _cg_image_step(domain, b_data + prior_rhs, x, lam, beta,
-                                              cg_iterations, cg_tol, pre)
-            state["x"] = x
-            yield "iteration", {"beta": beta, "inner": it + 1}
+    try:
+        if solver == "fourier":
+            fourier.set_observation(g)
+        else:
+            b_data = domain.data_adjoint(g) * domain.dtype.type(lam)
+            pre = CirculantPreconditioner(domain).operator if precondition else None
+        yield running()
+        for beta in betas:
+            thr = shrink_threshold(beta, alpha)
+            for _ in range(inner_iterations):
+                gx, gy = grad(x)
+                wx = shrink_hyperlaplacian(gx, beta, alpha, thr)
+                del gx
+                wy = shrink_hyperlaplacian(gy, beta, alpha, thr)
+                del gy
+                prior_rhs = grad_adjoint(wx, wy)
+                prior_rhs *= domain.dtype.type(beta)
+                del wx, wy
+                yield running()
+                if solver == "fourier":
+                    x = yield from relay(fourier.solve(prior_rhs, lam, beta, border_iterations),
+                                         running)
+                else:
+                    x = yield from relay(_cg_image_step(domain, b_data + prior_rhs, x, lam, beta,
+                                                        cg_iterations, cg_tol, pre), cg_record)
+                k += 1
+                yield Progress("hyperlaplacian", k, total,
+                               f"{name} {k}/{total} done (beta {beta:.3g})", iteration=k,
+                               iterate=x)
+    except StopRequested:
+        pass
     return x
 
 
-def _substeps(gen):
-    """Forward a solver's per-chunk yields as ``("substep", {})`` and return its value."""
-    while True:
-        try:
-            next(gen)
-        except StopIteration as done:
-            return done.value
-        yield "substep", {}
-
-
 def _cg_image_step(domain, b, x0, lam, beta, iterations, tol, precondition):
+    """The image step by :func:`conjugate_gradient` on the EFF normal equations."""
     lam_c = domain.dtype.type(lam)
     beta_c = domain.dtype.type(beta)
 
@@ -550,53 +586,58 @@ def _cg_image_step(domain, b, x0, lam, beta, iterations, tol, precondition):
         out += beta_c * grad_adjoint(gx, gy)
         return out
 
-    gen = conjugate_gradient(apply_a, b, x0, iterations, tol,
-                             precondition(lam, beta) if precondition else None)
-    while True:
-        try:
-            k, res = next(gen)
-        except StopIteration as done:
-            return done.value
-        yield "substep", {"cg": k, "residual": res}
+    return conjugate_gradient(apply_a, b, x0, iterations, tol,
+                              precondition(lam, beta) if precondition else None)
 
 
-def richardson_lucy_steps(domain: LatentDomain, g: np.ndarray, *, iterations: int,
-                          state: dict):
+def richardson_lucy_steps(domain: LatentDomain, g: np.ndarray, *, iterations: int):
     """Richardson-Lucy with the masked SV operator (non-negative, multiplicative).
 
     ``f <- f . T^T M^T (g / (M T f)) / T^T M^T 1``; latent pixels that no observed pixel
     sees (normaliser below 1e-3) keep their initial value. The estimate starts from the
-    mirrored observation, floored at ``eps`` so that no pixel is stuck at zero.
+    mirrored observation, floored at ``eps`` so that no pixel is stuck at zero. A
+    solver generator (module notes): ``iterations`` iterations.
     """
+    name = "Richardson-Lucy iteration"
     eps = domain.dtype.type(1e-3)
     x = np.maximum(domain.extend(g), eps)
-    state["x"] = x
-    norm = domain.data_adjoint(np.ones(domain.observed_shape, domain.dtype))
-    yield "substep", {}
-    seen = norm > 1e-3
-    inv_norm = np.where(seen, 1.0 / np.where(seen, norm, 1.0), 0.0).astype(domain.dtype)
-    for it in range(iterations):
-        ratio = g / np.maximum(domain.data_forward(x), eps)
-        update = domain.data_adjoint(ratio)
-        update *= inv_norm
-        x = np.where(seen, x * update, x)
-        state["x"] = x
-        yield "iteration", {"iteration": it + 1}
+    try:
+        norm = domain.data_adjoint(np.ones(domain.observed_shape, domain.dtype))
+        yield Progress("rl", 0, iterations, f"{name} 1/{iterations} running", iteration=0)
+        seen = norm > 1e-3
+        inv_norm = np.where(seen, 1.0 / np.where(seen, norm, 1.0), 0.0).astype(domain.dtype)
+        for k in range(1, iterations + 1):
+            ratio = g / np.maximum(domain.data_forward(x), eps)
+            update = domain.data_adjoint(ratio)
+            update *= inv_norm
+            x = np.where(seen, x * update, x)
+            yield Progress("rl", k, iterations, f"{name} {k}/{iterations} done", iteration=k,
+                           iterate=x)
+    except StopRequested:
+        pass
     return x
 
 
 def wiener(domain: LatentDomain, g: np.ndarray, *, nsr: float, fourier: PatchFourier,
-           border_iterations: int, state: dict):
+           border_iterations: int):
     """Patch-wise Wiener filter ``conj(k) y / (|k|^2 + nsr |d|^2)`` per tile, blended.
 
     The image spectrum is modelled as ``|omega|^-2`` (a gradient prior), so ``nsr``
     multiplies ``|d_x|^2 + |d_y|^2`` -- the Wiener filter for that model, and the
-    image step of :func:`hyperlaplacian_steps` with ``w = 0``.
+    image step of :func:`hyperlaplacian_steps` with ``w = 0``. A solver generator
+    (module notes) of one iteration.
     """
-    state["x"] = domain.extend(g)
-    fourier.set_observation(g)
-    yield "substep", {}
-    x = yield from _substeps(fourier.solve(None, 1.0, nsr, border_iterations))
-    state["x"] = x
-    yield "iteration", {"iteration": 1}
+    name = "Wiener filter"
+
+    def running(record=None):
+        return Progress("wiener", 0, 1, f"{name} 1/1 running", iteration=0)
+
+    x = domain.extend(g)
+    try:
+        fourier.set_observation(g)
+        yield running()
+        x = yield from relay(fourier.solve(None, 1.0, nsr, border_iterations), running)
+        yield Progress("wiener", 1, 1, f"{name} 1/1 done", iteration=1, iterate=x)
+    except StopRequested:
+        pass
     return x

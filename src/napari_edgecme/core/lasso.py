@@ -32,7 +32,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["LassoResult", "QuadraticTerm", "lipschitz_constant", "nonneg_lasso"]
+from .progress import Progress, StopRequested, drive
+
+__all__ = ["LassoResult", "QuadraticTerm", "iter_nonneg_lasso", "lipschitz_constant",
+           "nonneg_lasso"]
 
 
 @dataclass
@@ -97,8 +100,10 @@ def lipschitz_constant(matvec, n: int, n_iter: int = 30, rng=0) -> float:
 
 def nonneg_lasso(term: QuadraticTerm, lam: float, w0: np.ndarray, *, max_iter: int = 200,
                  tol: float = 1e-4, lipschitz: float | None = None,
-                 callback: Callable[[np.ndarray], object] | None = None) -> LassoResult:
+                 callback: Callable[[Progress], object] | None = None) -> LassoResult:
     """Solve ``min_w 1/2 w^T Q w - b^T w + lam * sum(w)`` subject to ``w >= 0`` by FISTA.
+
+    The plain-function face of :func:`iter_nonneg_lasso`.
 
     Parameters
     ----------
@@ -115,12 +120,36 @@ def nonneg_lasso(term: QuadraticTerm, lam: float, w0: np.ndarray, *, max_iter: i
     lipschitz : float, optional
         Upper bound on the largest eigenvalue of ``Q`` (estimated when omitted).
     callback : callable, optional
-        Called with the iterate ``w`` (n,) after every iteration (e.g. to trace the
-        convergence, as ``benchmarks/bench_lasso.py`` does); must not modify it.
+        Called with the :class:`~napari_edgecme.core.progress.Progress` record of every
+        iteration, its ``iterate`` the iterate ``w`` (n,) (e.g. to trace the
+        convergence, as ``benchmarks/bench_lasso.py`` does; copy it to keep it, never
+        modify it). Raising ``StopIteration`` in it stops FISTA and returns the
+        current iterate (``converged`` False, the message says it was stopped).
 
     Returns
     -------
     LassoResult
+    """
+    return drive(iter_nonneg_lasso(term, lam, w0, max_iter=max_iter, tol=tol,
+                                   lipschitz=lipschitz), callback)
+
+
+def iter_nonneg_lasso(term: QuadraticTerm, lam: float, w0: np.ndarray, *, max_iter: int = 200,
+                      tol: float = 1e-4, lipschitz: float | None = None):
+    """:func:`nonneg_lasso` as a solver generator (:mod:`~napari_edgecme.core.progress`).
+
+    Yields
+    ------
+    Progress
+        ``stage="lasso"``, one record per FISTA iteration: ``step`` iterations of at
+        most ``total = max_iter``, ``iterate`` the iterate ``w`` (n,), ``cost`` the
+        objective where it was evaluated (every 10th iteration and the last).
+
+    Returns
+    -------
+    LassoResult
+        ``StopIteration.value``; on :class:`~napari_edgecme.core.progress.StopRequested`
+        at once, with the current iterate.
     """
     n = w0.size
     L = lipschitz if lipschitz is not None else lipschitz_constant(term.matvec, n)
@@ -130,30 +159,39 @@ def nonneg_lasso(term: QuadraticTerm, lam: float, w0: np.ndarray, *, max_iter: i
     t = 1.0
     costs: list[float] = []
     converged = False
+    stopped = False
     it = 0
     prev_cost = np.inf
-    for it in range(1, max_iter + 1):
-        Qy = term.matvec(y)
-        grad = Qy - term.linear + lam
-        x_new = np.maximum(y - step * grad, 0.0)
-        t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        # adaptive restart: drop the momentum when it points uphill
-        if (y - x_new) @ (x_new - x) > 0:
-            t_new = 1.0
-            y = x_new.copy()
-        else:
-            y = x_new + ((t - 1.0) / t_new) * (x_new - x)
-        change = np.linalg.norm(x_new - x) / max(np.linalg.norm(x_new), 1e-30)
-        x, t = x_new, t_new
-        if callback is not None:
-            callback(x)
-        if it % 10 == 0 or change < tol:
-            Qx = term.matvec(x)
-            cost = term.value(x, Qx) + lam * float(x.sum())
-            costs.append(cost)
-            if change < tol or abs(prev_cost - cost) <= 1e-7 * abs(cost):
-                converged = True
+    try:
+        for it in range(1, max_iter + 1):
+            Qy = term.matvec(y)
+            grad = Qy - term.linear + lam
+            x_new = np.maximum(y - step * grad, 0.0)
+            t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
+            # adaptive restart: drop the momentum when it points uphill
+            if (y - x_new) @ (x_new - x) > 0:
+                t_new = 1.0
+                y = x_new.copy()
+            else:
+                y = x_new + ((t - 1.0) / t_new) * (x_new - x)
+            change = np.linalg.norm(x_new - x) / max(np.linalg.norm(x_new), 1e-30)
+            x, t = x_new, t_new
+            cost = None
+            if it % 10 == 0 or change < tol:
+                Qx = term.matvec(x)
+                cost = term.value(x, Qx) + lam * float(x.sum())
+                costs.append(cost)
+                if change < tol or abs(prev_cost - cost) <= 1e-7 * abs(cost):
+                    converged = True
+                prev_cost = cost
+            yield Progress("lasso", it, max_iter, f"FISTA iteration {it}/{max_iter}",
+                           iteration=it, cost=cost, iterate=x)
+            if converged:
                 break
-            prev_cost = cost
-    message = "converged" if converged else f"reached max_iter={max_iter}"
+    except StopRequested:
+        stopped = True
+    if stopped:
+        message = f"stopped by request after {it} iterations"
+    else:
+        message = "converged" if converged else f"reached max_iter={max_iter}"
     return LassoResult(x, it, converged, message, costs)

@@ -18,18 +18,21 @@ hyper-Laplacian deconvolution uses, so there is one image-step solver in the eng
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .deconv_prior import grad, grad_adjoint
 from .deconv_solvers import LatentDomain, PatchFourier
 from .motion import CameraMotion
-from .progress import drive
+from .progress import Progress, StopRequested, drive
 
-__all__ = ["iter_l0_latent", "l0_latent"]
+__all__ = ["iter_l0_latent", "l0_latent", "splitting_weights"]
 
 
 def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
-              kappa: float = 2.0, beta_max: float = 64.0, return_gradients: bool = False):
+              kappa: float = 2.0, beta_max: float = 64.0, return_gradients: bool = False,
+              callback: Callable[[Progress], object] | None = None):
     """Estimate the latent image under an L0 gradient prior (Eq. 21).
 
     The plain-function face of :func:`iter_l0_latent`.
@@ -46,6 +49,10 @@ def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
         Half-quadratic splitting schedule (Pan et al.: 2 and 1e5).
     return_gradients : bool
         Also return the thresholded gradients of the last splitting step.
+    callback : callable, optional
+        Called with each :class:`~napari_edgecme.core.progress.Progress` record (one
+        per splitting step); raising ``StopIteration`` in it stops the splitting and
+        returns the latent estimate so far.
 
     Returns
     -------
@@ -54,17 +61,34 @@ def l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
         ``return_gradients``, the gradients, shape (2, H, W)).
     """
     return drive(iter_l0_latent(blurred, motion, lambda_f, kappa=kappa, beta_max=beta_max,
-                                return_gradients=return_gradients))
+                                return_gradients=return_gradients), callback)
+
+
+def splitting_weights(lambda_f: float, kappa: float = 2.0, beta_max: float = 64.0) -> list:
+    """The continuation ``beta = 2 lambda_f kappa^k < beta_max`` of :func:`iter_l0_latent`."""
+    betas, beta = [], 2.0 * lambda_f
+    while beta < beta_max:
+        betas.append(beta)
+        beta *= kappa
+    return betas
 
 
 def iter_l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
                    kappa: float = 2.0, beta_max: float = 64.0,
                    return_gradients: bool = False):
-    """:func:`l0_latent` as a generator: yields ``None`` after each splitting step.
+    """:func:`l0_latent` as a solver generator (:mod:`~napari_edgecme.core.progress`).
 
-    The estimators drive it to report progress (and so to be cancellable) between the
-    splitting steps of a large image; it returns what :func:`l0_latent` returns
-    (``StopIteration.value``).
+    Yields
+    ------
+    Progress
+        ``stage="latent"``, one record after each splitting step (``step`` of
+        ``total`` steps), its ``iterate`` the latent estimate on the padded domain.
+
+    Returns
+    -------
+    What :func:`l0_latent` returns (``StopIteration.value``). On
+    :class:`~napari_edgecme.core.progress.StopRequested` it returns at once with the
+    estimate of the last finished step (the mirrored observation before the first).
     """
     H, W = blurred.shape
     pad = (motion.psf_size() + 1) // 2
@@ -72,18 +96,22 @@ def iter_l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *
     solver = PatchFourier(domain, margin=2 * pad)
     solver.set_observation(blurred)
     f = domain.extend(blurred)
-    beta = 2.0 * lambda_f
+    betas = splitting_weights(lambda_f, kappa, beta_max)
     gx = gy = None
-    while beta < beta_max:
-        gx, gy = grad(f)
-        small = gx * gx + gy * gy < lambda_f / beta
-        gx[small] = 0
-        gy[small] = 0
-        prior = grad_adjoint(gx, gy)
-        prior *= blurred.dtype.type(beta)
-        f = drive(solver.solve(prior, 1.0, beta))
-        beta *= kappa
-        yield
+    try:
+        for k, beta in enumerate(betas, 1):
+            gx, gy = grad(f)
+            small = gx * gx + gy * gy < lambda_f / beta
+            gx[small] = 0
+            gy[small] = 0
+            prior = grad_adjoint(gx, gy)
+            prior *= blurred.dtype.type(beta)
+            f = drive(solver.solve(prior, 1.0, beta))
+            yield Progress("latent", k, len(betas),
+                           f"L0 splitting step {k}/{len(betas)} (beta {beta:.3g})",
+                           iteration=k, iterate=f)
+    except StopRequested:
+        pass
     f = np.ascontiguousarray(f[domain.inner])
     if return_gradients:
         if gx is None:

@@ -1,19 +1,33 @@
 """The one progress-and-cancel protocol of the engine.
 
-Every long computation exists as a generator ``iter_*(...)`` that yields
-:class:`Progress` records and *returns* its result (``StopIteration.value``).
-Widgets run these generators in worker threads; scripts call the plain function,
-which drives the generator with :func:`drive`.
+Every long computation, and every iterative solver inside one, is a generator that
+yields :class:`Progress` records and *returns* its result (``StopIteration.value``);
+nothing else is ever yielded. Widgets run the top-level ``iter_*(...)`` generators in
+worker threads; scripts call the plain function (``deconvolve``, ``l0_latent``,
+``nonneg_lasso``, ...), which drives the generator with :func:`drive` and takes a
+``callback``.
 
-Cancelling:
+Solver generators (the steppable protocol)
+    A solver (``hyperlaplacian_steps``, ``conjugate_gradient``, ``iter_l0_latent``,
+    ``iter_nonneg_lasso``, ...) yields one record per unit of work: ``step`` counts
+    the finished iterations out of ``total`` and ``iteration`` repeats it; a record
+    that ends an iteration carries the solver's current estimate in ``iterate`` (a
+    reference to its working array, no copy: copy it to keep it, never modify it).
+    This replaces SigPy's ``Alg.update()``/``done()``/``.x``: ``next(solver)`` is one
+    update, ``StopIteration`` is done, ``record.iterate`` is ``x``. A solver nested in
+    another is run with :func:`relay`, which re-labels its records for the outer one.
+
+Cancelling and stopping:
 
 * ``generator.close()`` stops the work at the next yield; nothing is returned;
+* throwing :class:`StopRequested` in (:func:`stop`) makes a solver return its best
+  estimate so far at once -- the last finished iterate, or its starting point -- and
+  a top-level ``iter_*`` generator yield one record saying it stopped and return its
+  result so far (or raise :class:`Cancelled` if it has nothing);
 * a ``callback(record)`` passed to a plain function may raise ``StopIteration``
   (as in :func:`scipy.optimize.minimize`): :func:`drive` throws :class:`StopRequested`
-  into the generator, which ends cleanly and returns its best result so far with
-  a message saying it was stopped (or raises :class:`Cancelled` if it has nothing).
+  into the generator, with the effect above.
 """
-
 from __future__ import annotations
 
 from collections.abc import Callable, Generator
@@ -21,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Cancelled", "Progress", "StopRequested", "drive"]
+__all__ = ["Cancelled", "Progress", "StopRequested", "drive", "relay", "stop"]
 
 
 class StopRequested(Exception):
@@ -52,8 +66,11 @@ class Progress:
     cost : float or None
         Current objective value, where one is defined.
     preview : ndarray or None
-        An intermediate image (e.g. the latent estimate), when the caller asked
-        for previews.
+        An intermediate whole image (e.g. the latent estimate), when the caller
+        asked for previews (a copy, the caller's to keep).
+    iterate : ndarray or None
+        On a solver's records that end an iteration: its current estimate, a
+        reference to the working array (copy it to keep it; never modify it).
     """
 
     stage: str
@@ -65,6 +82,7 @@ class Progress:
     iteration: int | None = None
     cost: float | None = None
     preview: np.ndarray | None = field(default=None, repr=False, compare=False)
+    iterate: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def fraction(self) -> float:
@@ -78,7 +96,8 @@ def drive(gen: Generator, callback: Callable[[Progress], object] | None = None):
     Parameters
     ----------
     gen : generator
-        Yields :class:`Progress` records and returns the result.
+        Yields :class:`Progress` records and returns the result (an ``iter_*``
+        generator or a solver generator).
     callback : callable, optional
         Called with every record. Raising ``StopIteration`` in it stops the work
         cleanly: the generator returns its best result so far (with a message
@@ -105,3 +124,45 @@ def drive(gen: Generator, callback: Callable[[Progress], object] | None = None):
         raise Cancelled("stopped by callback before any result was available") from None
     finally:
         gen.close()
+
+
+def relay(gen: Generator, relabel: Callable[[Progress], Progress]):
+    """Run a solver nested in another: yield ``relabel(record)`` for each of its records.
+
+    Use as ``result = yield from relay(inner, relabel)`` inside the outer solver. A
+    :class:`StopRequested` or ``close()`` that reaches the outer solver at one of these
+    records is raised in the outer solver (which then returns its own estimate) and the
+    inner one is closed.
+
+    Returns
+    -------
+    object
+        Whatever ``gen`` returns.
+    """
+    try:
+        while True:
+            try:
+                record = next(gen)
+            except StopIteration as done:
+                return done.value
+            yield relabel(record)
+    finally:
+        gen.close()
+
+
+def stop(gen: Generator):
+    """Ask a suspended solver generator to stop; return its estimate so far.
+
+    Throws :class:`StopRequested` in; a solver returns at once (module notes).
+
+    Raises
+    ------
+    RuntimeError
+        If the generator yields again instead of returning (it is then closed).
+    """
+    try:
+        gen.throw(StopRequested("stop requested"))
+    except StopIteration as done:
+        return done.value
+    gen.close()
+    raise RuntimeError("a solver yielded a record after a stop request instead of returning")
