@@ -57,7 +57,9 @@ def measure(image, truth, max_blur: float) -> dict:
     if len(profiles):
         ncc, ratio = profile_fidelity(profiles, truth)
         out.update(ncc=ncc.round(4).tolist(), ratio=np.round(ratio, 4).tolist(),
-                   quality=np.round(profiles.quality, 4).tolist())
+                   quality=np.round(profiles.quality, 4).tolist(),
+                   measures={k: np.round(v, 4).tolist()
+                             for k, v in getattr(profiles, "measures", {}).items()})
         coverage = getattr(profiles, "coverage", None)
         if callable(coverage):
             out["coverage"] = coverage()

@@ -14,6 +14,11 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+#: A profile beside a clipped plateau narrower (in variance; 0.8 in width) than this
+#: share of the blur field of the unclipped profiles is a clipped transition
+#: (see ``_clipped_too_narrow``).
+_CLIP_NARROW = 0.65
+
 _OUTLIER_FLOOR = 0.4
 _OUTLIER_MADS = 3.0
 _SOFT_TAU = 0.2
@@ -70,7 +75,7 @@ _QUANTILE_ITERS = 30
 
 
 def _blur_consistency(centroids, angles, deriv, offsets, shape, tau=None, rel=None,
-                      slack=1.0) -> np.ndarray:
+                      slack=1.0):
     """Keep profiles whose width is consistent with one camera-shake blur field.
 
     A blurred step's derivative is the PSF projection convolved with the sharp edge's
@@ -78,48 +83,97 @@ def _blur_consistency(centroids, angles, deriv, offsets, shape, tau=None, rel=No
     local PSF) *plus* the sharp edge's variance, never less. For camera shake the PSF
     displacements are nearly affine in ``x`` over the image, so ``Sigma(x)`` is a
     quadratic polynomial in ``x``. We fit that field to the lower side of the measured
-    variances (a quantile regression at ``tau``, by iterative reweighting: 18
-    coefficients, fewer when there are few profiles) and refuse profiles wider than
-    ``(1 + rel) * fit + slack`` px^2: soft or shaded scene edges, which would make the
-    blur look larger than it is.
+    variances (a quantile regression at ``tau``, :func:`_blur_field`) and refuse
+    profiles wider than ``(1 + rel) * fit + slack`` px^2: soft or shaded scene edges,
+    which would make the blur look larger than it is.
 
     Returns
     -------
-    ndarray of bool, shape (n,)
+    consistent : ndarray of bool, shape (n,)
         True where the profile is consistent.
+    width_excess : ndarray of shape (n,)
+        The measured variance over the largest one accepted: ``<= 1`` when consistent.
     """
     tau = _SOFT_TAU if tau is None else tau
     rel = _SOFT_REL if rel is None else rel
-    n = len(centroids)
     var = deriv @ (offsets**2)
+    field = _blur_field(centroids, angles, var, shape, tau)
+    limit = (1.0 + rel) * np.maximum(field(centroids, angles), 0.0) + slack
+    return var <= limit, var / limit
+
+
+def _clipped_too_narrow(centroids, angles, deriv, offsets, shape, clipped):
+    """Profiles beside a clipped plateau that are narrower than the blur field, (n,) bool.
+
+    A plateau at the sensor's limit is harmless when the scene is flat there; but a light
+    brighter than white, clipped after the blur, cuts the transition short, and the
+    profile comes out narrow and smooth (no kink gives it away). So a profile beside a
+    clipped plateau must be as wide as the blur field of the profiles with unclipped
+    plateaus predicts (median regression, :func:`_blur_field`): a variance below
+    :data:`_CLIP_NARROW` of it is refused. With fewer than 6 unclipped profiles (a page
+    of text, a white background) there is no reference and nothing is refused.
+    """
+    clipped = np.asarray(clipped, bool)
+    refused = np.zeros(len(centroids), bool)
+    reference = ~clipped
+    if reference.sum() < 6 or not clipped.any():
+        return refused
+    var = deriv @ (offsets**2)
+    field = _blur_field(centroids[reference], angles[reference], var[reference], shape, 0.5,
+                        max_degree=0)
+    pred = field(centroids[clipped], angles[clipped])
+    refused[clipped] = var[clipped] < _CLIP_NARROW * np.maximum(pred, 0.0)
+    return refused
+
+
+def _blur_field(centroids, angles, var, shape, tau, max_degree=2):
+    """Fit ``n^T Sigma(x) n`` to profile variances by quantile regression at ``tau``.
+
+    ``Sigma(x)`` is a polynomial in the image position: constant, affine from 30
+    profiles, quadratic from 60 (3-18 coefficients; at most ``max_degree``); the check
+    loss is minimised by
+    iteratively reweighted least squares. Returns ``field(points, angles) -> (m,)``,
+    the fitted variance at those points along those normals.
+    """
+    n = len(centroids)
     H, W = shape
     size = float(max(H, W))
-    x = (centroids[:, 1] - (W - 1) / 2) / size
-    y = (centroids[:, 0] - (H - 1) / 2) / size
-    basis = [np.ones(n)]
-    if n >= 30:
-        basis += [x, y]
-    if n >= 60:
-        basis += [x * x, x * y, y * y]
-    B = np.stack(basis, -1)
-    c, s = np.cos(angles), np.sin(angles)
-    F = np.concatenate([B * (c * c)[:, None], B * (2 * c * s)[:, None], B * (s * s)[:, None]],
-                       1)
+    degree = min(max_degree, 0 if n < 30 else (1 if n < 60 else 2))
+
+    def features(points, phi):
+        x = (points[:, 1] - (W - 1) / 2) / size
+        y = (points[:, 0] - (H - 1) / 2) / size
+        basis = [np.ones(len(points))]
+        if degree >= 1:
+            basis += [x, y]
+        if degree >= 2:
+            basis += [x * x, x * y, y * y]
+        B = np.stack(basis, -1)
+        c, s = np.cos(phi), np.sin(phi)
+        return np.concatenate([B * (c * c)[:, None], B * (2 * c * s)[:, None],
+                               B * (s * s)[:, None]], 1)
+
+    F = features(centroids, angles)
     scale = max(float(np.median(var)), 1e-3)
     ridge = 1e-6 * np.eye(F.shape[1]) * n
     w = np.ones(n)
-    pred = np.full(n, scale)
+    theta = np.zeros(F.shape[1])
+    theta[0] = theta[2 * F.shape[1] // 3] = scale  # isotropic start: n^T (scale I) n
     for _ in range(_QUANTILE_ITERS):
         A = F.T @ (F * w[:, None]) + ridge
         try:
             theta = np.linalg.solve(A, F.T @ (w * var))
         except np.linalg.LinAlgError:  # pragma: no cover - degenerate orientations
             break
-        pred = F @ theta
-        r = var - pred
+        r = var - F @ theta
         # iteratively reweighted least squares for the check loss of quantile tau
         w = np.where(r > 0, tau, 1.0 - tau) / np.maximum(np.abs(r), 0.02 * scale)
-    return var <= (1.0 + rel) * np.maximum(pred, 0.0) + slack
+
+    def field(points, phi):
+        return features(np.asarray(points, float).reshape(-1, 2),
+                        np.asarray(phi, float).reshape(-1)) @ theta
+
+    return field
 
 
 def _ncc_rows(a, b) -> np.ndarray:

@@ -19,6 +19,7 @@ from .edge_tests import (
     _finish,
     _Geometry,
     _geometry,
+    _measures,
     _quality,
     _sample,
     _settings,
@@ -123,10 +124,11 @@ saturation
     r2["angle"] = np.array([angle2 - float(r2["tilt"][0])])
     prof = _finish(r2, geom)
     quality = _quality(r2, np.full(1, np.nan), geom, tests)
+    measures = _measures(r2, np.full(1, np.nan), np.full(1, np.nan), geom)
     return EdgeProfiles(prof["centroid"], prof["angle"], r2["c1"], r2["c2"], prof["alpha"],
                         prof["deriv"], offsets, quality, image_shape=img.shape,
                         max_blur=max_blur, stats=stats, curvature=r2["curvature"],
-                        window=prof["window"])
+                        window=prof["window"], measures=measures)
 
 
 def _stroke_angle_error(img, p0, p1, sigma) -> float:

@@ -45,16 +45,20 @@ import math
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from ._validation import as_rng, check_positive
-from .edge_consistency import _blur_consistency, _neighbour_outliers
+from .edge_consistency import _blur_consistency, _clipped_too_narrow, _neighbour_outliers
 from .edge_picking import profile_along_line
 from .edge_tests import (
     _OUTLIER,
+    _SATURATED,
     _SOFT,
     REASONS,
     _count_reasons,
     _finish,
+    _geometry,
+    _measures,
     _quality,
     _settings,
     _summarise,
@@ -227,15 +231,17 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
                             straight_tol, saturation, n_lines, line_spread)
     spacing = max(4.0, 0.35 * max_blur) if spacing is None else check_positive(
         spacing, "spacing", allow_zero=True)
+    fixed_scale = sigma is not None or line_spread is not None  # the caller's geometry
     sigma = (float(np.clip(0.2 * max_blur, 1.0, 8.0)) if sigma is None
              else check_positive(sigma, "sigma"))
     if max_profiles is not None:
         max_profiles = check_positive(max_profiles, "max_profiles", integer=True)
     offsets = np.arange(-geom.half, geom.half + 1, dtype=float)
     shape = img.shape
+    scales = (max_blur,) if fixed_scale else _scales(max_blur)
     stats = {"candidates": 0, "examined": 0, "valid": 0, "outliers": 0, "soft": 0,
              "duplicates": 0, "kept": 0, "rejected": {}, "noise": tests.noise, "sigma": sigma,
-             "spacing": spacing}
+             "spacing": spacing, "scales": list(scales), "valid_by_scale": []}
 
     def empty(reason):
         return EdgeProfiles.empty(reason, offsets, shape, max_blur, stats)
@@ -250,26 +256,24 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
     if float(img.max()) - float(img.min()) < tests.min_contrast:
         return empty("image has no contrast (nearly constant)")
 
-    cand, angle, _ = _edge_candidates(img, sigma, geom, tests, border, spacing)
-    stats["candidates"] = len(cand)
-    if len(cand) == 0:
+    parts, taken = [], np.zeros((0, 2))
+    for scale in scales:
+        part = _extract_at_scale(img, scale, sigma if fixed_scale else None, tests,
+                                 n_lines, line_spread, spacing, max_candidates, rng, taken,
+                                 geom.half, stats)
+        stats["valid_by_scale"].append(0 if part is None else len(part[1]["centroid"]))
+        if part is not None:
+            parts.append(part)
+            taken = np.concatenate([taken, part[1]["centroid"]])
+    if stats["candidates"] == 0:
         return empty(f"no edge candidates above the contrast threshold "
                      f"(min_contrast={tests.min_contrast:g}, noise {tests.noise:.3g})")
-    if len(cand) > max_candidates:
-        pick = np.sort(rng.choice(len(cand), max_candidates, replace=False))
-        cand, angle = cand[pick], angle[pick]
-    stats["examined"] = len(cand)
-
-    res = _two_pass(img, cand, angle, geom, tests, max_tilt_pass1=np.deg2rad(30.0))
-    ok = res["reason"] == 0
-    stats["rejected"] = _count_reasons(res["reason"])
-    stats["valid"] = int(ok.sum())
-    if not ok.any():
+    if not parts:
         return empty("no candidate passed the validity tests ("
                      + _summarise(stats["rejected"]) + ")")
-    res = {k: (v[ok] if isinstance(v, np.ndarray) and v.shape[:1] == ok.shape else v)
-           for k, v in res.items()}
-    prof = _finish(res, geom)
+    res = {k: np.concatenate([r[k] for r, _ in parts]) for k in parts[0][0]}
+    prof = {k: np.concatenate([p[k] for _, p in parts]) for k in parts[0][1]}
+    stats["valid"] = len(prof["centroid"])
 
     agreement = np.full(len(prof["centroid"]), np.nan)
     keep = np.ones(len(agreement), bool)
@@ -279,14 +283,26 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
         stats["outliers"] = int((~keep).sum())
         if stats["outliers"]:
             stats["rejected"][REASONS[_OUTLIER]] = stats["outliers"]
+    width_excess = np.full(len(agreement), np.nan)
     if reject_soft and keep.sum() >= 6:
-        soft = ~_blur_consistency(prof["centroid"][keep], prof["angle"][keep],
-                                  prof["deriv"][keep], offsets, shape)
+        consistent, width_excess[keep] = _blur_consistency(
+            prof["centroid"][keep], prof["angle"][keep], prof["deriv"][keep], offsets, shape)
+        soft = ~consistent
         stats["soft"] = int(soft.sum())
         if stats["soft"]:
             stats["rejected"][REASONS[_SOFT]] = stats["soft"]
         keep[np.flatnonzero(keep)[soft]] = False
+    # a plateau at the sensor's limit may hide a transition cut short by clipping
+    at_limit = res["clipped_plateau"] > 0.5
+    if reject_soft and (keep & at_limit).any():
+        cut = _clipped_too_narrow(prof["centroid"][keep], prof["angle"][keep],
+                                  prof["deriv"][keep], offsets, shape, at_limit[keep])
+        if cut.any():
+            stats["rejected"][REASONS[_SATURATED]] = (
+                stats["rejected"].get(REASONS[_SATURATED], 0) + int(cut.sum()))
+        keep[np.flatnonzero(keep)[cut]] = False
     quality = _quality(res, agreement, geom, tests)
+    measures = _measures(res, agreement, width_excess, geom)
     idx = np.flatnonzero(keep)
     idx = idx[_spread_out(prof["centroid"][idx], quality[idx], spacing)]
     stats["duplicates"] = int(keep.sum() - len(idx))
@@ -297,7 +313,82 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
     return EdgeProfiles(prof["centroid"][idx], prof["angle"][idx], res["c1"][idx],
                         res["c2"][idx], prof["alpha"][idx], prof["deriv"][idx], offsets,
                         quality[idx], image_shape=shape, max_blur=max_blur, stats=stats,
-                        curvature=res["curvature"][idx], window=prof["window"][idx])
+                        curvature=res["curvature"][idx], window=prof["window"][idx],
+                        measures={k: v[idx] for k, v in measures.items()})
+
+
+#: Each detection scale is this fraction of the previous one (see :func:`_scales`).
+_SCALE_STEP = 0.5
+#: No detection scale below this (px): the smallest windows are then about as short as
+#: a profile's two plateaus.
+_SMALLEST_SCALE = 6.0
+#: At most this many scales: the smallest is then ``max_blur / 4``.
+_MAX_SCALES = 3
+
+
+def _scales(max_blur: float) -> tuple:
+    """The detection scales, largest first: ``max_blur``, half of it, a quarter.
+
+    ``max_blur`` is an upper bound, and a generous one when it is the default: the Canny
+    scale, the parallel lines' spread, the curvature allowance and the windows it sets
+    ask of an edge that it be clean and straight over the largest blur. An edge of a
+    photo blurred less than that is often clean over its own blur only; the smaller
+    scales give it a chance, with the same tests. A profile found at a smaller scale
+    must still pass every test there (a transition wider than that scale allows is
+    refused, never truncated) and sits on the same offsets grid.
+    """
+    scales = [float(max_blur)]
+    while (len(scales) < _MAX_SCALES
+           and scales[-1] * _SCALE_STEP >= min(_SMALLEST_SCALE, max_blur)):
+        scales.append(scales[-1] * _SCALE_STEP)
+    return tuple(scales)
+
+
+def _extract_at_scale(img, scale, sigma, tests, n_lines, line_spread, spacing,
+                      max_candidates, rng, taken, half, stats):
+    """Candidates and validity tests at one detection scale; ``None`` when none passed.
+
+    Candidates within ``spacing`` of a profile already found at a larger scale
+    (``taken``, (m, 2)) are skipped. The valid profiles are put on the offsets grid
+    ``-half .. half`` of the largest scale. Updates ``stats`` (candidates, examined,
+    rejections by reason). Returns the per-candidate test results and the finished
+    profiles (dicts of arrays over the valid candidates).
+    """
+    geom = _geometry(scale, n_lines, line_spread)
+    sigma = float(np.clip(0.2 * scale, 1.0, 8.0)) if sigma is None else sigma
+    spacing_s = min(spacing, max(4.0, 0.35 * scale))
+    border = math.ceil(math.hypot(geom.windows[-1] + 1.0, float(np.max(np.abs(geom.lateral))))
+                       + sigma) + 2
+    if min(img.shape) <= 2 * border + 2:
+        return None
+    cand, angle, _ = _edge_candidates(img, sigma, geom, tests, border, spacing_s)
+    if len(taken) and len(cand):
+        near = cKDTree(taken).query(cand, distance_upper_bound=spacing)[0] < spacing
+        cand, angle = cand[~near], angle[~near]
+    stats["candidates"] += len(cand)
+    if len(cand) > max_candidates:
+        pick = np.sort(rng.choice(len(cand), max_candidates, replace=False))
+        cand, angle = cand[pick], angle[pick]
+    stats["examined"] += len(cand)
+    if len(cand) == 0:
+        return None
+    res = _two_pass(img, cand, angle, geom, tests, max_tilt_pass1=np.deg2rad(30.0))
+    for name, count in _count_reasons(res["reason"]).items():
+        stats["rejected"][name] = stats["rejected"].get(name, 0) + count
+    ok = res["reason"] == 0
+    if not ok.any():
+        return None
+    res = {k: v[ok] for k, v in res.items()
+           if isinstance(v, np.ndarray) and v.shape[:1] == ok.shape}
+    res["scale"] = np.full(int(ok.sum()), float(scale))
+    prof = _finish(res, geom)
+    res = {k: v for k, v in res.items() if v.ndim == 1}  # the fine-grid arrays are done
+    pad = half - geom.half
+    if pad > 0:
+        prof["alpha"] = np.pad(prof["alpha"], ((0, 0), (pad, 0)), constant_values=0.0)
+        prof["alpha"] = np.pad(prof["alpha"], ((0, 0), (0, pad)), constant_values=1.0)
+        prof["deriv"] = np.pad(prof["deriv"], ((0, 0), (pad, pad)))
+    return res, prof
 
 
 def _gradient_noise(sigma: float) -> float:

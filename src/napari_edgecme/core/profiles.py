@@ -67,6 +67,11 @@ class EdgeProfiles:
         Largest blur extent (pixels) the profiles were extracted for.
     stats : dict, optional
         Bookkeeping of the extraction (candidates, rejections by reason, ...).
+    measures : dict of str to array_like of shape (n,), optional
+        Per-profile statistics of the validity tests, by name (those of the automatic
+        extraction: :data:`~napari_edgecme.core.edge_tests.MEASURES`). Kept through
+        :meth:`subset` and the profile file; :meth:`concatenate` keeps the names every
+        set has.
 
     Notes
     -----
@@ -76,7 +81,7 @@ class EdgeProfiles:
 
     def __init__(self, centroids, normal_angle, c1, c2, profiles, derivatives, offsets,
                  quality, reason: str = "", image_shape=None, max_blur=None, stats=None,
-                 curvature=None, window=None):
+                 curvature=None, window=None, measures=None):
         self.offsets = np.asarray(offsets, dtype=float).reshape(-1)
         N = self.offsets.size
         self.centroids = np.asarray(centroids, dtype=float).reshape(-1, 2)
@@ -98,6 +103,8 @@ class EdgeProfiles:
                             else tuple(int(s) for s in tuple(image_shape)[:2]))
         self.max_blur = None if max_blur is None else float(max_blur)
         self.stats = dict(stats or {})
+        self.measures = {str(k): _vector(v, n, f"measures[{k!r}]")
+                         for k, v in dict(measures or {}).items()}
 
     # -- basic protocol ------------------------------------------------------------------
     @classmethod
@@ -148,7 +155,8 @@ class EdgeProfiles:
                             self.offsets, self.quality[idx], reason=reason,
                             image_shape=self.image_shape, max_blur=self.max_blur,
                             stats=self.stats, curvature=self.curvature[idx],
-                            window=self.window[idx])
+                            window=self.window[idx],
+                            measures={k: v[idx] for k, v in self.measures.items()})
 
     def select(self, mask) -> EdgeProfiles:
         """The profiles where the boolean ``mask`` of shape (n,) is true."""
@@ -176,8 +184,13 @@ class EdgeProfiles:
         if not parts:
             return cls.empty(items[0].reason, offsets, shape, blur)
         cat = [np.concatenate(x) for x in zip(*parts, strict=True)]
+        full = [it for it in items if len(it)]
+        common = set.intersection(*(set(it.measures) for it in full))
+        measures = {k: np.concatenate([it.measures[k] for it in full])
+                    for k in sorted(common)}
         return cls(cat[0], cat[1], cat[2], cat[3], cat[4], cat[5], offsets, cat[6],
-                   image_shape=shape, max_blur=blur, curvature=cat[7], window=cat[8])
+                   image_shape=shape, max_blur=blur, curvature=cat[7], window=cat[8],
+                   measures=measures)
 
     def _padded(self, R):
         r = round(np.max(np.abs(self.offsets)))
@@ -225,7 +238,8 @@ class EdgeProfiles:
         cen = (self.centroids + 0.5) * factor - 0.5
         return EdgeProfiles(cen, self.normal_angle, self.c1, self.c2, prof, der, new_off,
                             self.quality, image_shape=shape, max_blur=blur, stats=self.stats,
-                            curvature=self.curvature / factor, window=self.window * factor)
+                            curvature=self.curvature / factor, window=self.window * factor,
+                            measures=self.measures)
 
     # -- files -----------------------------------------------------------------------------
     def to_dict(self) -> dict:
@@ -247,6 +261,8 @@ class EdgeProfiles:
             "profiles": self.profiles.tolist(),
             "derivatives": self.derivatives.tolist(),
             "stats": _jsonable(self.stats),
+            "measures": {k: [None if not np.isfinite(x) else float(x) for x in v]
+                         for k, v in self.measures.items()},
         }
 
     @classmethod
@@ -309,6 +325,22 @@ class EdgeProfiles:
                 raise ValueError(f"profile file entry {key!r} must hold n={n} finite "
                                  f"numbers; got shape {arr.shape}")
             optional[key] = arr
+        measures = data.get("measures")
+        if measures is not None and n > 0:
+            if not isinstance(measures, dict):
+                raise ValueError("profile file entry 'measures' must be an object")
+            parsed = {}
+            for key, values in measures.items():
+                try:
+                    arr = np.array([np.nan if v is None else v for v in values], dtype=float)
+                except (TypeError, ValueError):
+                    raise ValueError(f"profile file measure {key!r} is not a numeric "
+                                     "array") from None
+                if arr.shape != (n,):
+                    raise ValueError(f"profile file measure {key!r} must hold n={n} "
+                                     f"numbers; got shape {arr.shape}")
+                parsed[str(key)] = arr
+            optional["measures"] = parsed
         if n == 0:
             return cls.empty(str(data.get("reason") or "no edge profiles"), arrays["offsets"],
                              shape, blur, stats)
