@@ -5,6 +5,7 @@ operator the deconvolution uses, so nothing here commits the inverse crime.
 """
 
 import inspect
+import re
 import threading
 import time
 import warnings
@@ -14,6 +15,7 @@ import pytest
 
 from napari_edgecme import CameraMotion, Intrinsics
 from napari_edgecme.core import deconv
+from napari_edgecme.core import deconv_solvers as solvers
 from napari_edgecme.core.deconv import DEFAULTS, deconvolve, iter_deconvolve
 from napari_edgecme.core.deconv_prior import (
     grad,
@@ -298,28 +300,37 @@ def test_callback_sees_every_record_and_previews_on_request(small):
 
 
 def test_closing_the_generator_stops_work_promptly(monkeypatch):
-    # a 1000 x 1000 RGB image: seconds of work; close after a few records
+    # a 1000 x 1000 RGB image: seconds of work; close after a few records. The work is
+    # counted (samples through the solvers' FFTs), so the check does not depend on the
+    # machine's load, and it can fail: work done in close() (a handler that finishes
+    # the image step or assembles a result) shows up in the count.
     cam = Intrinsics.from_image_shape((1000, 1000))
     motion = densify_path(random_trajectory("rotation", cam, 21, 24, rng=2), "rotation", cam)
     image = np.zeros((1000, 1000, 3), np.float32)
-    solves = []
-    real_solve = deconv.PatchFourier.solve
+    samples = [0]
+    real_rfft2, real_irfft2 = solvers.sfft.rfft2, solvers.sfft.irfft2
 
-    def counting_solve(self, *args, **kwargs):
-        solves.append(1)
-        return real_solve(self, *args, **kwargs)
+    def counting_rfft2(a, *args, **kwargs):
+        samples[0] += np.size(a)
+        return real_rfft2(a, *args, **kwargs)
 
-    monkeypatch.setattr(deconv.PatchFourier, "solve", counting_solve)
+    def counting_irfft2(a, *args, **kwargs):
+        out = real_irfft2(a, *args, **kwargs)
+        samples[0] += out.size
+        return out
+
+    monkeypatch.setattr(solvers.sfft, "rfft2", counting_rfft2)
+    monkeypatch.setattr(solvers.sfft, "irfft2", counting_irfft2)
     gen = iter_deconvolve(image, motion)
     for _ in range(5):
         next(gen)
+    before = samples[0]
+    assert before > 0  # the counter sees the work
     t = time.process_time()  # CPU seconds of this process: not inflated by a shared machine
     gen.close()
+    assert samples[0] == before  # no work at all after close()
     assert time.process_time() - t < 1.0
-    n = len(solves)
-    with pytest.raises(StopIteration):
-        next(gen)
-    assert len(solves) == n  # nothing ran after close()
+    assert inspect.getgeneratorstate(gen) == inspect.GEN_CLOSED
 
 
 def test_time_between_records_is_short_on_a_large_image():
@@ -407,8 +418,13 @@ BAD = [
     ({"method": "rl", "iterations": 0}, "iterations must be a finite integer > 0"),
     ({"method": "rl", "iterations": -4}, "iterations must be a finite integer > 0"),
     ({"method": "wiener", "nsr": 0.0}, "nsr must be a finite number > 0"),
-    ({"method": "rl", "lam": 100.0}, "unknown parameter 'lam' for method 'rl'"),
-    ({"speed": "fast"}, "unknown parameter 'speed'"),
+    ({"lambda_f": 0}, "lambda_f must be a finite number > 0"),
+    ({"lambda_f": np.nan}, "lambda_f must be a finite number > 0"),
+    ({"lambda_f": 1e-3, "lam": 2000.0}, "lam is the deprecated form of lambda_f"),
+    ({"method": "rl", "lam": 100.0}, "parameter 'lam' does not apply to method 'rl'"),
+    ({"method": "rl", "lambda_f": 1e-3}, "parameter 'lambda_f' does not apply to method 'rl'"),
+    ({"method": "wiener", "iterations": 5}, "parameter 'iterations' does not apply"),
+    ({"solver": "cg", "nsr": 0.1}, "parameter 'nsr' does not apply to method 'hyperlaplacian'"),
     ({"block_size": 16}, "block_size must be >= 64"),
     ({"stride": 0}, "stride must be a finite integer > 0"),
     ({"preview": "yes"}, "preview must be True or False"),
@@ -422,9 +438,68 @@ def test_bad_input_raises_one_line_naming_the_parameter(small, change, message):
     params = {k: v for k, v in change.items() if k not in args}
     args.update({k: v for k, v in change.items() if k in args})
     for fn in (deconvolve, lambda *a, **k: next(iter_deconvolve(*a, **k))):
-        with pytest.raises(ValueError, match=message) as err:
-            fn(args["image"], args["motion"], args["method"], **params)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)  # the alias ``lam``
+            with pytest.raises(ValueError, match=message) as err:
+                fn(args["image"], args["motion"], args["method"], **params)
         assert "\n" not in str(err.value)
+
+
+def test_an_unknown_keyword_is_a_type_error_as_in_the_estimation(small):
+    for fn in (deconvolve, iter_deconvolve):
+        with pytest.raises(TypeError, match="unexpected keyword argument 'speed'"):
+            fn(small.blurred, small.motion, speed="fast")
+
+
+def test_a_parameter_dict_is_checked_by_the_public_validation():
+    # what deblur(deconv_params=...) uses before it estimates: unknown names included
+    check = deconv.check_deconvolution_parameters
+    with pytest.raises(ValueError, match="unknown parameter 'lamda' for method 'hyperlaplacian'"):
+        check("hyperlaplacian", {"lamda": 1.0})
+    opts = check("rl", {"iterations": 7})
+    assert opts == {"iterations": 7, **DEFAULTS["common"]}
+    opts = check("hyperlaplacian", {})
+    assert opts["lambda_f"] == 2 / 1500 and opts["lam"] == 1500.0
+
+
+# ---------------------------------------------------------------------------------------
+# the parameters: explicit in the signatures, one name per role, the deprecated alias
+# ---------------------------------------------------------------------------------------
+
+def test_every_parameter_is_explicit_in_both_signatures_with_its_default():
+    plain = inspect.signature(deconvolve).parameters
+    gen = inspect.signature(iter_deconvolve).parameters
+    assert [n for n in plain if n != "callback"] == list(gen)
+    for name in gen:
+        assert plain[name].default == gen[name].default or name == "lam", name
+    names = [n for group in deconv.METHOD_PARAMETERS.values() for n in group]
+    assert set(names) | {"image", "motion", "method", "lam"} == set(gen)
+    for method, group in deconv.METHOD_PARAMETERS.items():
+        assert {n: DEFAULTS[method][n] for n in group} == {n: gen[n].default for n in group}
+    doc = deconvolve.__doc__
+    for name in [*names, "lam", "callback"]:  # each one documented in the numpydoc list
+        assert re.search(rf"\n    (\w+, )*{name}(, \w+)* : ", doc), name
+
+
+def test_lambda_f_names_the_prior_weight_as_in_the_estimation():
+    from napari_edgecme.core.estimate import iter_estimate_motion
+
+    assert "lambda_f" in inspect.signature(iter_estimate_motion).parameters
+    assert "lambda_f" in inspect.signature(deconvolve).parameters
+    # KF's data weight lambda is 2 / lambda_f: the default is the former lam = 1500
+    assert 2 / DEFAULTS["hyperlaplacian"]["lambda_f"] == 1500.0
+
+
+def test_lam_is_a_deprecated_alias_of_lambda_f_with_the_same_result(small):
+    new = deconvolve(small.blurred, small.motion, lambda_f=2 / 1000)
+    with pytest.warns(DeprecationWarning, match="'lam' is deprecated: pass lambda_f"):
+        old = deconvolve(small.blurred, small.motion, lam=1000.0)
+    np.testing.assert_array_equal(old, new)
+    with pytest.warns(DeprecationWarning):
+        gen = iter_deconvolve(small.blurred, small.motion, lam=1000.0)
+        _, again = run(gen)
+    np.testing.assert_array_equal(again, new)
+    assert not np.array_equal(new, deconvolve(small.blurred, small.motion))  # it matters
 
 
 def test_motion_of_another_aspect_ratio_is_refused(small):

@@ -9,8 +9,14 @@ tiles, one PSF per tile (Eq. 9), overlap-add. Three methods:
 ``"hyperlaplacian"`` (default)
     Krishnan & Fergus [1]_ (KF):
 
-    .. math::  \min_f \tfrac{\lambda}{2} \|M T f - g\|^2 + \sum_i |(D_x f)_i|^\alpha
+    .. math::  \min_f \|M T f - g\|^2 + \lambda_f \sum_i |(D_x f)_i|^\alpha
                + |(D_y f)_i|^\alpha ,\qquad \alpha \in \{1/2, 2/3\}
+
+    -- the form of the latent-image update of the estimation (Eq. 21, an L0 prior
+    there), with ``lambda_f`` in the same role: the weight of the gradient prior
+    against the data. KF write it with a data weight, ``lambda/2 ||M T f - g||^2 +
+    prior``: the same minimiser for ``lambda = 2 / lambda_f``, the ``lam`` below and the
+    deprecated keyword of that name.
 
     by half-quadratic splitting: the auxiliary gradients ``w`` get an exact
     per-pixel shrinkage (the roots of a cubic for 1/2, of a quartic for 2/3;
@@ -94,7 +100,9 @@ References
 
 from __future__ import annotations
 
+import inspect
 import math
+import warnings
 from collections.abc import Callable, Generator
 
 import numpy as np
@@ -112,7 +120,8 @@ from .motion import CameraMotion, psf_size_for
 from .operators import PatchGrid
 from .progress import Progress, StopRequested, drive, stop
 
-__all__ = ["DEFAULTS", "METHODS", "SOLVERS", "deconvolve", "iter_deconvolve"]
+__all__ = ["DEFAULTS", "METHODS", "METHOD_PARAMETERS", "SOLVERS",
+           "check_deconvolution_parameters", "deconvolve", "iter_deconvolve"]
 
 #: Deconvolution methods, by name.
 METHODS = ("hyperlaplacian", "rl", "wiener")
@@ -120,23 +129,27 @@ METHODS = ("hyperlaplacian", "rl", "wiener")
 #: Image-step solvers of the hyper-Laplacian method.
 SOLVERS = ("fourier", "cg")
 
-#: Default parameters per method (see :func:`deconvolve`), plus the ones all methods take.
-DEFAULTS = {
-    "hyperlaplacian": {
-        "lam": 1500.0,
-        "alpha": 2.0 / 3.0,
-        "beta_start": 1.0,
-        "beta_rate": 2.0 * math.sqrt(2.0),
-        "beta_max": 256.0,
-        "inner_iterations": 1,
-        "solver": "fourier",
-        "cg_iterations": 10,
-        "cg_tol": 1e-4,
-    },
-    "rl": {"iterations": 30},
-    "wiener": {"nsr": 1e-2},
-    "common": {"block_size": 2048, "stride": None, "preview": False},
+#: The keywords of :func:`deconvolve` each method uses; ``"common"``: all methods.
+METHOD_PARAMETERS = {
+    "hyperlaplacian": ("lambda_f", "alpha", "beta_start", "beta_rate", "beta_max",
+                       "inner_iterations", "solver", "cg_iterations", "cg_tol"),
+    "rl": ("iterations",),
+    "wiener": ("nsr",),
+    "common": ("block_size", "stride", "preview"),
 }
+
+#: Deprecated keywords: old name -> the parameter it stands for, and its method.
+DEPRECATED_ALIASES = {"lam": ("lambda_f", "hyperlaplacian")}
+
+
+class _NotGiven:
+    """The default of a deprecated keyword: not passed (``None`` is a value, refused)."""
+
+    def __repr__(self) -> str:
+        return "<not given>"
+
+
+NOT_GIVEN = _NotGiven()
 
 #: Smallest accepted block size (pixels).
 MIN_BLOCK = 64
@@ -154,8 +167,17 @@ FOURIER_BORDER_ITERATIONS = {"hyperlaplacian": 8, "wiener": 12}
 
 
 def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
-               callback: Callable[[Progress], object] | None = None, **params) -> np.ndarray:
+               lambda_f: float = 2.0 / 1500.0, alpha: float = 2.0 / 3.0,
+               beta_start: float = 1.0, beta_rate: float = 2.0 * math.sqrt(2.0),
+               beta_max: float = 256.0, inner_iterations: int = 1, solver: str = "fourier",
+               cg_iterations: int = 10, cg_tol: float = 1e-4, iterations: int = 30,
+               nsr: float = 1e-2, block_size: int = 2048, stride: int | None = None,
+               preview: bool = False, lam: float = NOT_GIVEN,
+               callback: Callable[[Progress], object] | None = None) -> np.ndarray:
     """Restore a blurred photo with a known (spatially varying) camera motion.
+
+    Each method reads only its own parameters (:data:`METHOD_PARAMETERS`); a value
+    other than the default for another method's parameter is refused.
 
     Parameters
     ----------
@@ -168,36 +190,48 @@ def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
         works. A motion for another aspect ratio is refused.
     method : {"hyperlaplacian", "rl", "wiener"}
         See the module notes.
+    lambda_f : float, default 2/1500 (about 1.33e-3)
+        hyperlaplacian: weight of the gradient prior against ``||M T f - g||^2``
+        (module notes), for images in [0, 1] -- the role ``lambda_f`` has in the
+        estimation's latent update (Eq. 21). ``2 / lambda_f`` is KF's data weight
+        ``lambda``: the reference's 2e3 at small noise is ``lambda_f = 1e-3``; at 1 %
+        noise 2/1500 is best on average over our synthetic sets (2/1000 .. 2/2000
+        within 0.3 dB, 2/3000 1 dB worse). Lower it for cleaner photos, raise it for
+        noisier ones.
+    alpha : float, default 2/3
+        hyperlaplacian: prior exponent, 1/2 or 2/3 (exact w-steps). 2/3 is 0.2 dB
+        better on average at 1 % noise; 1/2 favours piecewise-flat scenes.
+    beta_start, beta_rate, beta_max : float, default 1, 2 sqrt 2, 256
+        hyperlaplacian: the continuation schedule of the splitting weight (the
+        reference's; 6 steps).
+    inner_iterations : int, default 1
+        hyperlaplacian: w-step/image-step alternations per ``beta``.
+    solver : {"fourier", "cg"}, default "fourier"
+        hyperlaplacian: image-step solver (module notes).
+    cg_iterations : int, default 10
+        hyperlaplacian with ``solver="cg"``: CG iterations per image step.
+    cg_tol : float, default 1e-4
+        hyperlaplacian with ``solver="cg"``: relative residual that ends an image step.
+    iterations : int, default 30
+        rl: Richardson-Lucy iterations.
+    nsr : float, default 0.01
+        wiener: noise-to-signal ratio relative to a ``|omega|^-2`` image spectrum
+        (best on average at 1 % noise).
+    block_size : int, default 2048
+        all methods: side of the blocks a large image is cut into (>= 64).
+    stride : int or None, default None
+        all methods: EFF tile size in pixels (>= 8); None adapts it to how fast the
+        PSF changes across the image (module notes).
+    preview : bool, default False
+        all methods: attach the current whole-image estimate to each iteration's
+        progress record (costs a copy of the image per record).
+    lam : float, optional
+        Deprecated (DeprecationWarning): hyperlaplacian's data weight, KF's
+        ``lambda``; pass ``lambda_f = 2 / lam`` instead.
     callback : callable, optional
         Called with every :class:`~napari_edgecme.core.progress.Progress` record;
         raising ``StopIteration`` in it stops the work and returns the image as
         restored so far (blocks not reached are returned unrestored).
-    **params
-        Method parameters (unknown names are refused):
-
-        hyperlaplacian
-            ``lam`` (1500): data weight ``lambda`` of the objective above, for images in [0, 1].
-            The reference uses 2e3 at small noise; for 1 % noise 1.5e3 is best on
-            average over our synthetic sets (1e3-2e3 within 0.3 dB, 3e3 1 dB worse).
-            Raise it for cleaner photos, lower it for noisier ones.
-            ``alpha`` (2/3): prior exponent, 1/2 or 2/3 (exact w-steps). 2/3 is 0.2 dB
-            better on average at 1 % noise; 1/2 favours piecewise-flat scenes.
-            ``beta_start`` (1), ``beta_rate`` (2 sqrt 2), ``beta_max`` (256): the
-            continuation schedule of the splitting weight (the reference's; 6 steps).
-            ``inner_iterations`` (1): w-step/image-step alternations per ``beta``.
-            ``solver`` ("fourier" or "cg"): image-step solver (module notes).
-            ``cg_iterations`` (10), ``cg_tol`` (1e-4): CG limits per image step.
-        rl
-            ``iterations`` (30): Richardson-Lucy iterations.
-        wiener
-            ``nsr`` (0.01): noise-to-signal ratio relative to a ``|omega|^-2`` image
-            spectrum (best on average at 1 % noise).
-        all methods
-            ``block_size`` (2048): side of the blocks a large image is cut into.
-            ``stride`` (None): EFF tile size in pixels; None adapts it to how fast the
-            PSF changes across the image (module notes).
-            ``preview`` (False): attach the current whole-image estimate to each
-            iteration's progress record (costs a copy of the image per record).
 
     Returns
     -------
@@ -208,8 +242,9 @@ def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
     Raises
     ------
     ValueError
-        On a bad image (shape, NaN/inf), an unknown method or parameter, a parameter
-        out of range, or a motion of another aspect ratio; the message names it.
+        On a bad image (shape, NaN/inf), an unknown method, a parameter out of range
+        or of another method, or a motion of another aspect ratio; the message names
+        it.
 
     Examples
     --------
@@ -222,11 +257,21 @@ def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
     >>> bool(aligned_psnr(restored, case.sharp) > aligned_psnr(case.blurred, case.sharp) + 2)
     True
     """
-    return drive(iter_deconvolve(image, motion, method, **params), callback)
+    return drive(iter_deconvolve(
+        image, motion, method, lambda_f=lambda_f, alpha=alpha, beta_start=beta_start,
+        beta_rate=beta_rate, beta_max=beta_max, inner_iterations=inner_iterations,
+        solver=solver, cg_iterations=cg_iterations, cg_tol=cg_tol, iterations=iterations,
+        nsr=nsr, block_size=block_size, stride=stride, preview=preview, lam=lam), callback)
 
 
-def iter_deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian",
-                    **params) -> Generator[Progress, None, np.ndarray]:
+def iter_deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
+                    lambda_f: float = 2.0 / 1500.0, alpha: float = 2.0 / 3.0,
+                    beta_start: float = 1.0, beta_rate: float = 2.0 * math.sqrt(2.0),
+                    beta_max: float = 256.0, inner_iterations: int = 1,
+                    solver: str = "fourier", cg_iterations: int = 10, cg_tol: float = 1e-4,
+                    iterations: int = 30, nsr: float = 1e-2, block_size: int = 2048,
+                    stride: int | None = None, preview: bool = False,
+                    lam: float = NOT_GIVEN) -> Generator[Progress, None, np.ndarray]:
     """:func:`deconvolve` as a generator: yields progress records, returns the image.
 
     Inputs are validated when the generator starts (at the first ``next``), before
@@ -238,8 +283,10 @@ def iter_deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian",
 
     Parameters
     ----------
-    image, motion, method, **params
-        As for :func:`deconvolve`.
+    image, motion, method, lambda_f, alpha, beta_start, beta_rate, beta_max, \
+inner_iterations, solver, cg_iterations, cg_tol, iterations, nsr, block_size, stride, \
+preview, lam
+        As for :func:`deconvolve` (the same keywords and defaults).
 
     Yields
     ------
@@ -255,27 +302,98 @@ def iter_deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian",
     ndarray of shape (H, W) or (H, W, 3)
         The restored image, as for :func:`deconvolve` (``StopIteration.value``).
     """
+    arguments = dict(locals())
+    given = {name: arguments[name] for name in _PARAMETER_NAMES
+             if not _is_default(arguments[name], _SIGNATURE_DEFAULTS[name])}
     img = as_float_image(image, "image", allow_rgb=True)
     method = check_choice(method, "method", METHODS)
-    opts = _check_params(method, params)
+    opts = check_deconvolution_parameters(method, given)
     motion = _fit_motion(motion, img.shape)
     return (yield from _run(img, motion, method, opts))
+
+
+def _is_default(value, default) -> bool:
+    """Whether a keyword was left at (or given as) its default."""
+    if value is default:
+        return True
+    try:
+        return type(value) is type(default) and bool(value == default)
+    except (TypeError, ValueError):
+        return False
+
+
+#: Every parameter keyword of :func:`deconvolve` / :func:`iter_deconvolve`, and defaults.
+_PARAMETER_NAMES = (*(n for names in METHOD_PARAMETERS.values() for n in names),
+                    *DEPRECATED_ALIASES)
+_SIGNATURE_DEFAULTS = {name: inspect.signature(iter_deconvolve).parameters[name].default
+                       for name in _PARAMETER_NAMES}
+
+#: Default parameters per method and the ones all methods take (``"common"``): the
+#: defaults of :func:`deconvolve`'s signature, for display. The deprecated ``lam``
+#: appears with its equivalent default (``2 / lambda_f``) for callers written against
+#: the old name.
+DEFAULTS = {method: {name: _SIGNATURE_DEFAULTS[name] for name in names}
+            for method, names in METHOD_PARAMETERS.items()}
+DEFAULTS["hyperlaplacian"]["lam"] = 2.0 / DEFAULTS["hyperlaplacian"]["lambda_f"]
 
 
 # --------------------------------------------------------------------------------------
 # validation
 # --------------------------------------------------------------------------------------
 
-def _check_params(method: str, params: dict) -> dict:
+def check_deconvolution_parameters(method: str, params: dict) -> dict:
+    """Validate the parameters of a deconvolution method; the one check of them.
+
+    :func:`deconvolve` runs it on the keywords given other than their defaults;
+    :func:`~napari_edgecme.core.estimate.deblur` on its ``deconv_params`` before it
+    spends minutes estimating.
+
+    Parameters
+    ----------
+    method : {"hyperlaplacian", "rl", "wiener"}
+        An already checked method name.
+    params : dict
+        Parameter name -> value, any subset of ``method``'s parameters, those common
+        to all methods (:data:`METHOD_PARAMETERS`) and deprecated aliases (which warn
+        with a DeprecationWarning).
+
+    Returns
+    -------
+    dict
+        Every parameter of ``method`` and the common ones, defaults filled in, values
+        checked and normalised, aliases resolved; plus ``"lam"`` (hyperlaplacian: the
+        data weight ``2 / lambda_f`` the solvers use).
+
+    Raises
+    ------
+    ValueError
+        On an unknown name, a parameter of another method, both a parameter and its
+        alias, or a value out of range; one line naming the parameter.
+    """
     allowed = {**DEFAULTS[method], **DEFAULTS["common"]}
+    allowed.pop("lam", None)
+    own = set(allowed) | {a for a, (_, m) in DEPRECATED_ALIASES.items() if m == method}
     for name in params:
-        if name not in allowed:
+        if name not in own:
             listed = ", ".join(sorted(allowed))
+            if name in _PARAMETER_NAMES:
+                raise ValueError(f"parameter {name!r} does not apply to method {method!r}; "
+                                 f"its parameters: {listed}")
             raise ValueError(f"unknown parameter {name!r} for method {method!r}; "
                              f"accepted: {listed}")
-    opts = {**allowed, **params}
+    opts = {**allowed, **{n: v for n, v in params.items() if n not in DEPRECATED_ALIASES}}
     if method == "hyperlaplacian":
-        opts["lam"] = check_positive(opts["lam"], "lam")
+        if "lam" in params:
+            warnings.warn("deconvolution parameter 'lam' is deprecated: pass lambda_f = "
+                          "2 / lam (the weight of the gradient prior, as in the estimation)",
+                          DeprecationWarning, stacklevel=3)
+            if "lambda_f" in params:
+                raise ValueError("lam is the deprecated form of lambda_f: pass one of them")
+            opts["lam"] = check_positive(params["lam"], "lam")
+            opts["lambda_f"] = 2.0 / opts["lam"]
+        else:
+            opts["lambda_f"] = check_positive(opts["lambda_f"], "lambda_f")
+            opts["lam"] = 2.0 / opts["lambda_f"]
         opts["alpha"] = check_alpha(opts["alpha"])
         opts["beta_start"] = check_positive(opts["beta_start"], "beta_start")
         opts["beta_rate"] = check_positive(opts["beta_rate"], "beta_rate")

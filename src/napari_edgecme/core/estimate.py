@@ -736,13 +736,13 @@ def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: floa
     estimate : MotionEstimate
     """
     from .deconv import METHODS as DECONV_METHODS
-    from .deconv import _check_params, deconvolve
+    from .deconv import check_deconvolution_parameters, deconvolve
 
     # the deconvolution's own checks, before minutes of estimation
     deconvolution = check_choice(deconvolution, "deconvolution", DECONV_METHODS)
     if deconv_params is not None and not isinstance(deconv_params, dict):
         raise ValueError(f"deconv_params must be a dict; got {type(deconv_params).__name__}")
-    _check_params(deconvolution, dict(deconv_params or {}))
+    check_deconvolution_parameters(deconvolution, dict(deconv_params or {}))
     estimate = estimate_motion(image, method, model, max_blur, focal_px, callback=callback,
                                **params)
     if estimate.info.no_blur:  # nothing to undo: the photo comes back unchanged
