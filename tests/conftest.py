@@ -1,7 +1,35 @@
-"""Shared fixtures. GUI tests live in tests/gui and are marked; the engine tests need no Qt."""
+"""Shared fixtures and marker rules. GUI tests live in tests/gui and are marked; the
+engine tests need no Qt.
+
+Markers (declared in pyproject.toml):
+
+* ``gui``: napari/Qt widget tests. Every ``viewer`` test (a real napari viewer, under
+  Xvfb) is a ``gui`` test too, so ``-m "not gui"`` runs the engine tests alone;
+* ``slow``: deselected unless asked for, with ``--run-slow`` or a ``-m`` expression
+  that names ``slow`` (e.g. ``-m slow``, ``-m "slow or not slow"``).
+"""
 
 import numpy as np
 import pytest
+
+
+def pytest_addoption(parser):
+    parser.addoption("--run-slow", action="store_true", default=False,
+                     help="also run the tests marked slow (deselected by default)")
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest's own -m selection sees the markers
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.get_closest_marker("viewer") is not None:
+            item.add_marker(pytest.mark.gui)
+    if config.getoption("--run-slow") or "slow" in (config.getoption("markexpr") or ""):
+        return
+    kept = [item for item in items if item.get_closest_marker("slow") is None]
+    if len(kept) < len(items):
+        config.hook.pytest_deselected(
+            items=[item for item in items if item.get_closest_marker("slow") is not None])
+        items[:] = kept
 
 
 @pytest.fixture

@@ -49,13 +49,17 @@ def test_patch_windows_sum_to_one(shape, stride, overlap):
 
 
 def test_eff_matches_exact_warp_sum_on_a_31px_rotational_shake():
-    image = sample_image("camera", 512)
+    # 256 px (a quarter of the warping of the former 512 px) with 32 px tiles, the size the
+    # deconvolution picks for this motion (deconv._auto_stride). Measured: 1.8 % here; the
+    # operator's default 128 px tiles (2 x 2 on this frame) give 3.2 %, and at 512 px
+    # 1.3 % (default tiles) and 0.9 % (32 px).
+    image = sample_image("camera", 256)
     cam = Intrinsics.from_image_shape(image.shape)
     motion = densify_path(random_trajectory("rotation", cam, 31, 40, rng=0), "rotation", cam)
     exact = WarpSum(motion).forward(image)
-    eff = EfficientFilterFlow(motion).forward(image)
+    eff = EfficientFilterFlow(motion, stride=32).forward(image)
     rel = np.linalg.norm(eff - exact) / np.linalg.norm(exact)
-    print(f"EFF vs exact, 512x512, 31 px rotation: relative L2 error {rel:.4f}")
+    print(f"EFF vs exact, 256x256, 32 px tiles, 31 px rotation: relative L2 error {rel:.4f}")
     assert rel < 0.02
 
 
