@@ -83,7 +83,7 @@ __all__ = [
 
 
 def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast=0.06,
-                          min_snr=10.0, spacing=None, n_lines=5, line_spread=None,
+                          min_snr=20.0, spacing=None, n_lines=5, line_spread=None,
                           flat_tol=0.06, monotone_tol=0.08, straight_tol=0.35,
                           saturation=0.99, reject_outliers=True, reject_soft=True,
                           max_candidates=6000, max_profiles=None) -> EdgeProfiles:
