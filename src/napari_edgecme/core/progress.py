@@ -13,9 +13,12 @@ Solver generators (the steppable protocol)
     the finished iterations out of ``total`` and ``iteration`` repeats it; a record
     that ends an iteration carries the solver's current estimate in ``iterate`` (a
     reference to its working array, no copy: copy it to keep it, never modify it).
-    This replaces SigPy's ``Alg.update()``/``done()``/``.x``: ``next(solver)`` is one
-    update, ``StopIteration`` is done, ``record.iterate`` is ``x``. A solver nested in
-    another is run with :func:`relay`, which re-labels its records for the outer one.
+    This is SigPy's ``Alg.update()``/``done()``/``.x`` as a generator: ``next(solver)``
+    runs one unit of work (an iteration has ended when ``step`` grew),
+    ``StopIteration`` is done, ``record.iterate`` is ``x``. A solver nested in another
+    is run with :func:`relay`, which re-labels its records for the outer one. A
+    sub-step with no estimate of its own before it ends (one closed-form image step,
+    ``PatchFourier.solve``) lets a stop request propagate to the solver running it.
 
 Cancelling and stopping:
 
@@ -28,6 +31,7 @@ Cancelling and stopping:
   (as in :func:`scipy.optimize.minimize`): :func:`drive` throws :class:`StopRequested`
   into the generator, with the effect above.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Generator
