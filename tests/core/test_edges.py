@@ -16,6 +16,8 @@ import pytest
 from scipy import ndimage
 
 from napari_edgecme.core.camera import homographies, warp_points
+from napari_edgecme.core.edge_confidence import confidence
+from napari_edgecme.core.edge_tests import MEASURES
 from napari_edgecme.core.edges import (
     PROFILES_FORMAT,
     REASONS,
@@ -507,6 +509,47 @@ def test_profile_along_line_validates_its_points(one_case):
 # the container
 # ---------------------------------------------------------------------------------------
 
+def _profiles_at(centroids, angles, shape=(300, 300)):
+    n = len(angles)
+    offsets = np.arange(-5.0, 6.0)
+    deriv = np.zeros((n, offsets.size))
+    deriv[:, 5] = 1.0
+    alpha = (offsets >= 0) * np.ones((n, 1))
+    return EdgeProfiles(centroids, angles, np.ones(n), np.zeros(n), alpha, deriv, offsets,
+                        np.ones(n), image_shape=shape, max_blur=9)
+
+
+def test_coverage_says_which_motion_the_set_cannot_see():
+    rng = np.random.default_rng(0)
+    corner = rng.uniform(10, 90, (40, 2))  # all in the top-left cell of a 300 px image
+    parallel = _profiles_at(corner, np.zeros(40))  # normals along x: vertical edges
+    cov = parallel.coverage()
+    assert cov["orientation_bins"] == 1 and cov["orientation_balance"] < 1e-9
+    assert cov["weakest_direction_deg"] == pytest.approx(90.0)  # motion along y is unseen
+    assert cov["cells"] == 1 and cov["cell_counts"][0][0] == 40
+    assert "motion along 90 deg is poorly constrained" in parallel.coverage_summary()
+    spread = _profiles_at(rng.uniform(0, 300, (80, 2)), np.linspace(0, np.pi, 80,
+                                                                    endpoint=False))
+    cov = spread.coverage()
+    assert cov["orientation_bins"] == 8 and cov["orientation_balance"] > 0.95
+    assert cov["cells"] == 9 and "poorly" not in spread.coverage_summary()
+    assert EdgeProfiles.empty("none").coverage()["orientation_bins"] == 0
+
+
+def test_confidence_is_a_probability_that_rises_with_contrast_and_falls_with_clutter(one_case):
+    _, prof = one_case
+    assert ((prof.confidence > 0) & (prof.confidence < 1)).all()
+    base = {k: np.full(5, np.median(v[np.isfinite(v)])) for k, v in prof.measures.items()}
+    for name, sign in (("snr", 1), ("flatness", -1), ("monotonicity", -1)):
+        varied = dict(base, **{name: np.linspace(0.2, 1.0, 5) * (100 if name == "snr" else 1)})
+        steps = np.diff(confidence(varied, prof.max_blur))
+        assert (sign * steps > 0).all(), name
+    # on the clean reference scene nearly every profile is faithful: so says the confidence
+    assert np.median(prof.confidence) > 0.85
+    no_measures = _profiles_at(np.zeros((3, 2)), np.zeros(3))
+    assert np.isnan(no_measures.confidence).all()
+
+
 def test_subset_select_and_concatenate(one_case):
     _, prof = one_case
     sub = prof.subset([3, 0, 1])
@@ -560,6 +603,10 @@ def test_json_round_trip_is_exact(one_case, tmp_path):
         assert np.array_equal(getattr(back, name), getattr(prof, name)), name
     assert back.image_shape == prof.image_shape and back.max_blur == prof.max_blur
     assert back.stats["kept"] == prof.stats["kept"]
+    assert set(back.measures) == set(MEASURES) == set(prof.measures)
+    for name, values in prof.measures.items():  # NaN (no neighbours) survives as null
+        np.testing.assert_array_equal(back.measures[name], values, err_msg=name)
+    np.testing.assert_array_equal(back.confidence, prof.confidence)
     assert not list(tmp_path.glob(".*tmp*"))  # the atomic write left nothing behind
     empty = EdgeProfiles.empty("no edges here", prof.offsets)
     empty.save(path)

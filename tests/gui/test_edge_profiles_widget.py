@@ -82,7 +82,11 @@ def test_detect_draws_each_profile_as_a_line_across_its_edge_and_its_centroid(de
     for layer in (d.shapes, d.points):
         np.testing.assert_allclose(layer.scale, SCALE)
         np.testing.assert_allclose(layer.translate, TRANSLATE)
-    assert f"{len(profiles)} profiles" in d.widget.count_label.text()
+    np.testing.assert_allclose(d.shapes.features["confidence"], profiles.confidence)
+    text = d.widget.count_label.text()
+    assert f"{len(profiles)} profiles" in text
+    assert f"median confidence {np.median(profiles.confidence):.2f}" in text
+    assert profiles.coverage_summary() in text and "orientations" in text
     assert d.widget.runner.progress_bar is None
 
 

@@ -154,6 +154,12 @@ class EdgeProfilesWidget(QWidget):
         self.status.setWordWrap(True)
         self.count_label = QLabel("no profiles")
         self.count_label.setWordWrap(True)
+        self.count_label.setToolTip(
+            "Confidence: the chance that a profile matches the true blur (calibrated on "
+            "natural photos with known shake). Orientations: a profile sees the blur only "
+            "across its edge, so motion along edges of one direction is not seen; "
+            "balance 0 = all edges parallel, 1 = evenly spread. Cells: where in the "
+            "image (3x3) the profiles are.")
         self.plot_caption = QLabel("")
         self.plot_caption.setWordWrap(True)
         self.canvas, self._axes = plot_canvas(viewer, 2)
@@ -324,7 +330,7 @@ class EdgeProfilesWidget(QWidget):
             if len(profiles):
                 shapes.add_lines(list(profile_lines(profiles)), edge_color=colours)
             shapes.features = {"quality": profiles.quality, "contrast": profiles.contrast,
-                               "origin": origins}
+                               "confidence": profiles.confidence, "origin": origins}
             shapes.current_edge_color = _DRAW_COLOUR
             shapes.metadata[PROFILES_KEY] = profiles
             shapes.metadata[ORIGIN_KEY] = origins
@@ -481,10 +487,13 @@ class EdgeProfilesWidget(QWidget):
         profiles, origins = rec.profiles, rec.origins
         n_hand = sum(o == "hand" for o in origins)
         if len(profiles):
+            conf = profiles.confidence
+            trust = (f"median confidence {np.nanmedian(conf):.2f}" if np.isfinite(conf).any()
+                     else f"median quality {np.median(profiles.quality):.2f}")
             self.count_label.setText(
                 f"{len(profiles)} profiles in {rec.shapes.name!r}: "
-                f"{len(profiles) - n_hand} detected, {n_hand} by hand; "
-                f"median quality {np.median(profiles.quality):.2f}")
+                f"{len(profiles) - n_hand} detected, {n_hand} by hand; {trust}\n"
+                f"{profiles.coverage_summary()}")
         else:
             self.count_label.setText(f"no profiles in {rec.shapes.name!r}")
         selected = sorted(i for i in rec.shapes.selected_data if i < len(profiles))

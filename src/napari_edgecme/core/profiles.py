@@ -17,11 +17,16 @@ from pathlib import Path
 import numpy as np
 
 from ._validation import check_positive
+from .edge_confidence import confidence
 
 __all__ = ["PROFILES_FORMAT", "PROFILES_VERSION", "EdgeProfiles"]
 
 PROFILES_FORMAT = "edgecme-profiles"
 PROFILES_VERSION = 1
+
+#: An orientation balance (see :meth:`EdgeProfiles.coverage`) under this is reported as
+#: leaving one motion direction poorly constrained.
+POOR_BALANCE = 0.15
 
 
 class EdgeProfiles:
@@ -105,6 +110,78 @@ class EdgeProfiles:
         self.stats = dict(stats or {})
         self.measures = {str(k): _vector(v, n, f"measures[{k!r}]")
                          for k, v in dict(measures or {}).items()}
+
+    # -- trust and geometry ----------------------------------------------------------------
+    @property
+    def confidence(self) -> np.ndarray:
+        """Calibrated chance that each profile is true to the local blur, (n,) in (0, 1).
+
+        The probability that the derivative matches the true PSF projection with NCC >=
+        0.8, from the profile's test measures (:mod:`~napari_edgecme.core.edge_confidence`,
+        fitted and checked on the ``lai`` development set). NaN for profiles without
+        measures (files written before they existed).
+        """
+        return confidence(self.measures, self.max_blur) if len(self) else np.zeros(0)
+
+    def coverage(self, grid: int = 3) -> dict:
+        """What the set's geometry can constrain: orientations and places.
+
+        A profile measures the PSF only along its normal (Eq. 11), and only where it is,
+        so a set on edges of one orientation says nothing about motion along them, and a
+        set in one corner says little about a rotation.
+
+        Parameters
+        ----------
+        grid : int
+            The image is cut into ``grid x grid`` cells for the spatial coverage.
+
+        Returns
+        -------
+        dict
+            ``orientation_bins``: of 8 bins of normal direction (22.5 degrees each,
+            modulo 180), how many hold a profile. ``orientation_balance``: the smaller
+            over the larger eigenvalue of the normals' scatter ``mean(n n^T)``, in [0, 1]
+            (0: all normals parallel; 1: spread evenly). ``weakest_direction_deg``: the
+            image direction (degrees from the x axis, modulo 180) along which motion is
+            least seen, the eigenvector of the smaller eigenvalue. ``cells``: cells
+            holding a profile, of ``grid**2`` (None without ``image_shape``);
+            ``cell_counts``: profiles per cell, row by row.
+        """
+        out = {"profiles": len(self), "orientation_bins": 0, "orientation_balance": 0.0,
+               "weakest_direction_deg": None, "cells": None, "cell_counts": None,
+               "grid": int(grid)}
+        if len(self) == 0:
+            return out
+        phi = np.mod(self.normal_angle, np.pi)
+        out["orientation_bins"] = int(np.unique(np.minimum((phi / (np.pi / 8)).astype(int),
+                                                           7)).size)
+        n = np.stack([np.cos(phi), np.sin(phi)], -1)
+        evals, evecs = np.linalg.eigh(n.T @ n / len(n))
+        out["orientation_balance"] = float(evals[0] / max(evals[1], 1e-12))
+        weak = evecs[:, 0]
+        out["weakest_direction_deg"] = float(np.degrees(np.arctan2(weak[1], weak[0])) % 180.0)
+        if self.image_shape is not None:
+            H, W = self.image_shape
+            r = np.clip((self.centroids[:, 0] / H * grid).astype(int), 0, grid - 1)
+            c = np.clip((self.centroids[:, 1] / W * grid).astype(int), 0, grid - 1)
+            counts = np.bincount(r * grid + c, minlength=grid * grid)
+            out["cells"] = int(np.count_nonzero(counts))
+            out["cell_counts"] = counts.reshape(grid, grid).tolist()
+        return out
+
+    def coverage_summary(self) -> str:
+        """One line on :meth:`coverage`, e.g. for the CLI and the widget."""
+        cov = self.coverage()
+        if not cov["profiles"]:
+            return "no profiles"
+        text = (f"normals in {cov['orientation_bins']}/8 orientations "
+                f"(balance {cov['orientation_balance']:.2f})")
+        if cov["cells"] is not None:
+            text += f", {cov['cells']}/{cov['grid'] ** 2} image cells"
+        if cov["orientation_balance"] < POOR_BALANCE:
+            text += (f"; motion along {cov['weakest_direction_deg']:.0f} deg is poorly "
+                     "constrained")
+        return text
 
     # -- basic protocol ------------------------------------------------------------------
     @classmethod
