@@ -60,9 +60,8 @@ def measure(image, truth, max_blur: float) -> dict:
                    quality=np.round(profiles.quality, 4).tolist(),
                    measures={k: np.round(v, 4).tolist()
                              for k, v in getattr(profiles, "measures", {}).items()})
-        coverage = getattr(profiles, "coverage", None)
-        if callable(coverage):
-            out["coverage"] = coverage()
+        out["confidence"] = np.round(profiles.confidence, 4).tolist()
+    out["coverage"] = profiles.coverage()
     return out
 
 
@@ -103,26 +102,60 @@ def targets(rows) -> list[str]:
     def mark(ok):
         return "met" if ok else "missed"
 
+    def faithful(w):
+        return f"{p[w]['faithful']:.0%} ({mark(p[w]['faithful'] >= TARGET_FAITHFUL)})"
+
+    def ratio(w):
+        r = p[w]["median_ratio"]
+        return f"{r:.2f} ({mark(TARGET_RATIO[0] <= r <= TARGET_RATIO[1])})"
+
     lines.append(f"| >= {TARGET_FAITHFUL:.0%} of kept profiles NCC >= {FAITHFUL_NCC:g} | "
-                 + " | ".join(f"{p[w]['faithful']:.0%} ({mark(p[w]['faithful'] >= TARGET_FAITHFUL)})"
-                              for w in p) + " |")
+                 + " | ".join(faithful(w) for w in p) + " |")
     lines.append(f"| median width ratio in {TARGET_RATIO[0]}-{TARGET_RATIO[1]} | "
-                 + " | ".join(f"{p[w]['median_ratio']:.2f} "
-                              f"({mark(TARGET_RATIO[0] <= p[w]['median_ratio'] <= TARGET_RATIO[1])})"
-                              for w in p) + " |")
+                 + " | ".join(ratio(w) for w in p) + " |")
     lines.append(f"| >= {TARGET_COUNT} profiles on >= {TARGET_CASES:.0%} of cases | "
                  + " | ".join(f"{p[w]['enough']:.0%} ({mark(p[w]['enough'] >= TARGET_CASES)})"
                               for w in p) + " |")
     return lines
 
 
+def calibration(rows) -> list[str]:
+    """Predicted confidence against the observed share of faithful profiles, in bands."""
+    conf = np.concatenate([np.asarray(r[w].get("confidence", []), float)
+                           for r in rows for w in ("true", "default")])
+    ncc = np.concatenate([np.asarray(r[w].get("ncc", []), float)
+                          for r in rows for w in ("true", "default")])
+    lines = ["| confidence band | profiles | mean confidence | observed share NCC >= 0.8 |",
+             "|---|---:|---:|---:|"]
+    for lo, hi in ((0, 0.5), (0.5, 0.6), (0.6, 0.7), (0.7, 0.8), (0.8, 0.9), (0.9, 1.0)):
+        m = (conf >= lo) & (conf < hi if hi < 1 else conf <= hi)
+        if m.any():
+            lines.append(f"| {lo:.1f}-{hi:.1f} | {m.sum()} | {conf[m].mean():.2f} | "
+                         f"{np.mean(ncc[m] >= FAITHFUL_NCC):.2f} |")
+    return lines
+
+
+def coverage_table(rows) -> list[str]:
+    lines = ["| category | median orientation balance (true / default) "
+             "| median image cells of 9 (true / default) |", "|---|---:|---:|"]
+    for name in (*CATEGORIES, "all"):
+        group = [r for r in rows if name in ("all", r["category"])]
+        if not group:
+            continue
+        cells = [f"{np.median([r[w]['coverage'][key] or 0 for r in group]):.2f}"
+                 for key in ("orientation_balance", "cells") for w in ("true", "default")]
+        lines.append(f"| {name} | {cells[0]} / {cells[1]} | {cells[2]} / {cells[3]} |")
+    return lines
+
+
 def real_table(photos) -> list[str]:
     lines = [f"| photo | default max blur | profiles | profiles at {REAL_WIDE_BLUR:g} px "
-             "| main rejections at 31 px |", "|---|---:|---:|---:|---|"]
+             "| coverage at the default | main rejections at 31 px |",
+             "|---|---:|---:|---:|---|---|"]
     for ph in photos:
         top = sorted(ph["wide"]["rejected"].items(), key=lambda kv: -kv[1])[:3]
         lines.append(f"| {ph['name']} | {ph['default']['max_blur']:.0f} | "
-                     f"{ph['default']['n']} | {ph['wide']['n']} | "
+                     f"{ph['default']['n']} | {ph['wide']['n']} | {ph['default']['summary']} | "
                      + ", ".join(f"{k}: {v}" for k, v in top) + " |")
     both = sum(ph["default"]["n"] >= TARGET_COUNT and ph["wide"]["n"] >= TARGET_COUNT
                for ph in photos)
@@ -180,7 +213,9 @@ def main(argv=None) -> int:
              f"Load average at start: {os.getloadavg()[0]:.1f}.", ""]
     if rows:
         lines += [f"## lai ({len(rows)} cases)", "", *lai_table(rows, "true"), "",
-                  *lai_table(rows, "default"), "", "### Targets", "", *targets(rows), ""]
+                  *lai_table(rows, "default"), "", "### Targets", "", *targets(rows), "",
+                  "### Confidence against fidelity (both max blurs)", "", *calibration(rows),
+                  "", "### Coverage", "", *coverage_table(rows), ""]
     if photos:
         lines += [f"## The paper's real photos ({len(photos)})", "", *real_table(photos), ""]
     lines += ["## Time", "", *timing(args.repeat), "",
@@ -196,7 +231,8 @@ def main(argv=None) -> int:
 def _count(image, max_blur: float) -> dict:
     profiles = extract_edge_profiles(image, max_blur, rng=0)
     return {"max_blur": max_blur, "n": len(profiles),
-            "rejected": profiles.stats.get("rejected", {})}
+            "rejected": profiles.stats.get("rejected", {}),
+            "summary": profiles.coverage_summary()}
 
 
 if __name__ == "__main__":

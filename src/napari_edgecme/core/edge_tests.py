@@ -305,13 +305,22 @@ def _clipped_transition(S, ia, ib, pl, pr, saturation: float):
     clipped_plateau : ndarray of shape (n,)
         The larger of the two plateaus' shares of samples at a limit.
     """
+    n = S.shape[0]
+    clipped, share = np.zeros(n, bool), np.zeros(n)
+    # most candidates of a photo have no sample at a limit: look closer only at the others
+    some = np.flatnonzero((S.max(axis=(1, 2)) >= saturation)
+                          | (S.min(axis=(1, 2)) <= 1.0 - saturation))
+    if some.size == 0:
+        return clipped, share
+    S, ia, ib, pl, pr = S[some], ia[some], ib[some], pl[some], pr[some]
     idx = np.arange(S.shape[2])
     at_limit = (S >= saturation) | (S <= 1.0 - saturation)
     inside = (idx > ia[:, None]) & (idx < ib[:, None])
-    clipped = (at_limit & inside[:, None, :]).any(axis=(1, 2))
+    clipped[some] = (at_limit & inside[:, None, :]).any(axis=(1, 2))
     frac_l = (at_limit & pl[:, None, :]).mean(1).sum(1) / np.maximum(pl.sum(1), 1)
     frac_r = (at_limit & pr[:, None, :]).mean(1).sum(1) / np.maximum(pr.sum(1), 1)
-    return clipped, np.maximum(frac_l, frac_r)
+    share[some] = np.maximum(frac_l, frac_r)
+    return clipped, share
 
 
 def _lines(S, alpha, c2, Cs, ia, ib, pl, pr, t, geom: _Geometry, tests: _Tests,
