@@ -27,8 +27,9 @@ enough against the noise, the transition is monotone, narrower than the largest 
 free of an inner plateau (a second edge), the parallel lines agree (the edge is locally
 straight), the sensor's limits do not cut into the transition, the profile agrees with
 its neighbours of similar orientation, and it is no wider than the blur field that all
-profiles together show (soft or shaded scene edges would make the blur look larger). Near-duplicates along an
-edge are suppressed so that the kept profiles are at least ``spacing`` pixels apart.
+profiles together show (soft or shaded scene edges would make the blur look larger).
+Near-duplicates along an edge are suppressed so that the kept profiles are at least
+``spacing`` pixels apart.
 Detection runs at up to three scales (``max_blur`` and fractions of it), and each kept
 profile carries its test measures and a calibrated confidence
 (:attr:`EdgeProfiles.confidence`); the set reports its orientation and spatial coverage
