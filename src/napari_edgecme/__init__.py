@@ -37,6 +37,7 @@ _EXPORTS = {
     "estimate_motion": ".core.estimate",
     "iter_estimate_motion": ".core.estimate",
     "deblur": ".core.estimate",
+    "deblur_many": ".batch",
     "deconvolve": ".core.deconv",
     "iter_deconvolve": ".core.deconv",
     "make_case": ".core.synth",

@@ -4,6 +4,7 @@
 
     edgecme demo                                   # the whole pipeline on a bundled photo
     edgecme deblur photo.png -o sharp.png          # estimate the camera motion, deconvolve
+    edgecme batch shoot/ -o restored/              # many photos on a local Dask cluster
     edgecme estimate photo.png -o motion.json      # only the motion
     edgecme deconvolve photo.png --motion motion.json -o sharp.png
     edgecme profiles photo.png -o profiles.json --plot profiles.png
@@ -28,7 +29,8 @@ Conventions
   written to stdout except ``--help`` and ``--version``.
 * Exit status: 0 success; 2 bad input or usage (one line ``edgecme: error: ...`` on
   stderr, nothing written); 1 an internal error, i.e. a bug (one line; ``--debug``
-  shows the traceback); 130 interrupted (Ctrl-C).
+  shows the traceback); 130 interrupted (Ctrl-C). ``batch`` exits with 1 also when some
+  photos failed (each is reported; the others are written).
 * Randomness: ``--seed`` (default 0) seeds every random choice, so the same input,
   options and seed give identical output files.
 
@@ -64,6 +66,8 @@ PROG = "edgecme"
 
 #: Exit statuses.
 EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: Exit status of ``batch`` when some photos failed.
+EXIT_FAILED = 1
 
 #: Default blur extent of ``synth`` (pixels).
 SYNTH_EXTENT = 15.0
@@ -431,6 +435,22 @@ def cmd_estimate(args, console: _Console) -> int:
     return EXIT_OK
 
 
+def _deblur_image(args, console: _Console, image, path: Path, params: dict):
+    """Estimate the motion of ``image`` (read from ``path``) and deconvolve it, as ``deblur``.
+
+    Returns ``(restored, estimate, max_blur, focal source, deconvolution seconds)``; with no
+    blur found, ``restored`` is ``image`` itself. ``edgecme batch`` runs this per photo.
+    """
+    result, max_blur, source = _estimate_motion(args, console, image, path)
+    t0 = time.perf_counter()
+    if result.info.no_blur:  # nothing to undo: the photo comes back as it was
+        restored = image
+    else:
+        restored = console.run(_deconv.iter_deconvolve(image, result.motion,
+                                                       args.deconvolution, **params))
+    return restored, result, max_blur, source, time.perf_counter() - t0
+
+
 def cmd_deblur(args, console: _Console) -> int:
     path = _existing_input(args.image, "image")
     outputs = [("-o", _check_output(args.output, "-o", image=True))]
@@ -439,14 +459,8 @@ def cmd_deblur(args, console: _Console) -> int:
     _distinct([("IMAGE", path)], outputs)
     params = _deconv_params(args, args.deconvolution)
     image = read_input_image(path, console)
-    result, max_blur, source = _estimate_motion(args, console, image, path)
-    t0 = time.perf_counter()
-    if result.info.no_blur:  # nothing to undo: the photo comes back as it was
-        restored = image
-    else:
-        restored = console.run(_deconv.iter_deconvolve(image, result.motion,
-                                                       args.deconvolution, **params))
-    seconds = time.perf_counter() - t0
+    restored, result, max_blur, source, seconds = _deblur_image(args, console, image, path,
+                                                                params)
     with _writing(*(p for _, p in outputs)) as tmps:
         _io.write_image(tmps[0], restored, bits=output_bits(image))
         if args.save_motion is not None:
@@ -456,6 +470,41 @@ def cmd_deblur(args, console: _Console) -> int:
             f"deconvolved ({args.deconvolution}) in {seconds:.1f} s")
     console.info(f"{_estimate_summary(result, args.method, max_blur, source)}; {done}; "
                  f"wrote {wrote}")
+    return EXIT_OK
+
+
+def cmd_batch(args, console: _Console) -> int:
+    from . import batch
+
+    if args.scheduler is not None and args.workers is not None:
+        raise _UsageError("--workers sizes the local cluster; it does not apply with "
+                          "--scheduler")
+    params = {name: getattr(args, name) for name in batch.ESTIMATION_PARAMS
+              if getattr(args, name) is not None}
+    try:
+        with console.stage() as callback:
+            result = batch.deblur_many(
+                args.inputs, args.output, args.method, args.model, args.max_blur,
+                args.focal_px, deconvolution=args.deconvolution,
+                deconv_params=_deconv_params(args, args.deconvolution),
+                recursive=args.recursive, force=args.force, scheduler=args.scheduler,
+                workers=args.workers, callback=callback, log=console.info,
+                warn=console.warn, rng=args.seed, **params)
+    except ImportError as err:
+        raise CLIError(str(err)) from None
+    except KeyboardInterrupt:
+        console.error(f"interrupted; the photos finished so far are written, see "
+                      f"{args.output / 'report.html'}")
+        return EXIT_INTERRUPTED
+    counts = ", ".join(f"{n} {status}" for status, n in result.counts.items())
+    console.info(f"{len(result.rows)} photos: {counts} in {result.seconds:.0f} s; wrote "
+                 f"{result.report_html}")
+    if result.failed:
+        names = ", ".join(row["photo"] for row in result.failed[:5])
+        more = f" and {len(result.failed) - 5} more" if len(result.failed) > 5 else ""
+        console.warn(f"{len(result.failed)} of {len(result.rows)} photos failed: {names}{more} "
+                     f"(reasons in {result.report_csv})")
+        return EXIT_FAILED
     return EXIT_OK
 
 
@@ -627,7 +676,7 @@ def _add_common(parser) -> None:
                         help="show the traceback of an error")
 
 
-def _add_estimation(parser) -> None:
+def _add_estimation(parser, profiles: bool = True) -> None:
     group = parser.add_argument_group("motion estimation")
     group.add_argument("--method", choices=_estimate.METHODS, default="xu+ep",
                        help="ep = EpAlone (edge profiles only, Eq. 19), xu = Xu et al. L0 "
@@ -643,9 +692,10 @@ def _add_estimation(parser) -> None:
                             "focal length, else a 35 mm-equivalent of 35 mm)")
     group.add_argument("--seed", type=_number(int, allow_zero=True), default=0, metavar="N",
                        help="seed of every random choice (default: %(default)s)")
-    group.add_argument("--profiles", type=Path, metavar="PROFILES.json",
-                       help="use these edge profiles (from 'edgecme profiles') instead of "
-                            "detecting them")
+    if profiles:
+        group.add_argument("--profiles", type=Path, metavar="PROFILES.json",
+                           help="use these edge profiles (from 'edgecme profiles') instead of "
+                                "detecting them")
     d = _estimate.DEFAULTS  # defaults shown are the engine's own
     adv = parser.add_argument_group("advanced estimation parameters (paper Eqs. 19-22)")
     adv.add_argument("--n-iter", type=_number(int), metavar="N",
@@ -725,6 +775,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--deconvolution", choices=_deconv.METHODS, default="hyperlaplacian",
                    help="non-blind deconvolution method (default: %(default)s)")
     _add_estimation(p)
+    _add_deconvolution(p)
+
+    p = command("batch", cmd_batch, "deblur many photos on a Dask cluster, with a report",
+                "Deblur many photos as 'deblur' does, one task per photo on a local Dask "
+                "cluster sized to this machine (or an existing one, --scheduler). Writes "
+                "OUTDIR/NAME (the restored photo, in its own format), NAME.motion.json, "
+                "thumbnails in OUTDIR/thumbs and report.csv / report.html, updated as "
+                "results arrive. A rerun skips photos whose outputs exist (--force redoes "
+                "them). Ctrl-C: no new photo starts and the running ones finish; Ctrl-C "
+                "again cancels them. Exit status: 0 all photos restored (or no blur "
+                "found), 1 some failed (the report says why), 2 bad arguments, 130 "
+                "interrupted. Needs Dask (pip install \"napari-edgecme[batch]\") unless "
+                "--workers 1.")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="photo files, folders (their .png .tif .jpg .bmp files) and glob "
+                        "patterns")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="OUTDIR",
+                   help="output folder, created if missing")
+    p.add_argument("-r", "--recursive", action="store_true",
+                   help="also the photos in sub-folders (the outputs mirror them)")
+    p.add_argument("--force", action="store_true",
+                   help="redo photos whose outputs exist (default: skip them)")
+    p.add_argument("--workers", type=_number(int), metavar="N",
+                   help="worker processes of the local cluster (default: one per core, "
+                        "within the memory); 1 runs the photos one at a time in this "
+                        "process, without Dask")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="run on this existing Dask cluster instead of a local one")
+    p.add_argument("--deconvolution", choices=_deconv.METHODS, default="hyperlaplacian",
+                   help="non-blind deconvolution method (default: %(default)s)")
+    _add_estimation(p, profiles=False)
     _add_deconvolution(p)
 
     p = command("estimate", cmd_estimate, "estimate the camera motion only",
@@ -850,8 +931,8 @@ def main(argv=None) -> int:
     except SystemExit as done:  # --help, --version
         return done.code if isinstance(done.code, int) else EXIT_OK
     if args.command is None:
-        console.error("missing COMMAND (one of demo, deblur, estimate, deconvolve, profiles, "
-                      "psf, synth, bench); see 'edgecme --help'")
+        console.error("missing COMMAND (one of demo, deblur, batch, estimate, deconvolve, "
+                      "profiles, psf, synth, bench); see 'edgecme --help'")
         return EXIT_USAGE
     console = _Console(quiet=args.quiet)
     try:
