@@ -3,8 +3,11 @@
 Prints a Markdown table: the efficient filter flow (EFF) forward and adjoint on an
 800x800 float32 image under a 31 px rotational shake, the exact warp-sum with 100
 active poses on the same image, their ratio, and the EFF's relative L2 error against
-the exact warp-sum. Timings are medians over repeated runs on a shared machine: read
-the ratios, not the absolute numbers.
+the exact warp-sum; then the deconvolution's image-step normal operator
+``lam (M T)^T (M T) + beta D^T D`` on the padded latent domain, composed from operators
+(:meth:`~napari_edgecme.core.deconv_solvers.LatentDomain.normal`) and written out step
+by step, to show what the composition costs. Timings are medians over repeated runs on
+a shared machine: read the ratios, not the absolute numbers.
 
     python benchmarks/bench_operators.py [--repeat N] [--size PX]
 """
@@ -19,6 +22,8 @@ import time
 import numpy as np
 
 from napari_edgecme.core.camera import Intrinsics
+from napari_edgecme.core.deconv_prior import grad, grad_adjoint
+from napari_edgecme.core.deconv_solvers import LatentDomain
 from napari_edgecme.core.motion import CameraMotion
 from napari_edgecme.core.operators import EfficientFilterFlow, WarpSum
 from napari_edgecme.core.synth import densify_path, random_trajectory, sample_image
@@ -60,6 +65,26 @@ def main(argv=None) -> None:
     rel = np.linalg.norm(EfficientFilterFlow(dense, dtype=np.float64).forward(
         image.astype(np.float64)) - ref) / np.linalg.norm(ref)
 
+    # the image step's normal operator, composed and written out (same arithmetic)
+    pad = (dense.psf_size() + 1) // 2
+    domain = LatentDomain(dense, (0, args.size, 0, args.size), pad)
+    lam, beta = np.float32(750.0), np.float32(8.0)
+    normal = domain.normal(lam, beta)
+    v = np.random.default_rng(0).random(domain.shape).astype(np.float32)
+
+    def written_out(v):
+        blurred = domain.op.forward(v)[domain.inner]
+        embedded = np.zeros(domain.shape, np.float32)
+        embedded[domain.inner] = blurred
+        out = domain.op.adjoint(embedded)
+        out *= lam
+        out += beta * grad_adjoint(*grad(v))
+        return out
+
+    assert np.array_equal(normal @ v, written_out(v))
+    t_normal = median_time(lambda: normal @ v, args.repeat)
+    t_written = median_time(lambda: written_out(v), args.repeat)
+
     g = eff.grid
     print(f"# Blur operators, {args.size}x{args.size} float32, 31 px rotational shake")
     print(f"machine: {platform.node()} ({platform.machine()}, {platform.processor() or 'cpu'}),"
@@ -74,8 +99,14 @@ def main(argv=None) -> None:
     print(f"| EFF adjoint | {t_adj:.3f} | {t_adj / t_fwd:.1f}x |")
     print(f"| exact warp-sum forward, 100 poses | {t_exact:.3f} | {t_exact / t_fwd:.1f}x |")
     print(f"| exact warp-sum adjoint, 100 poses | {t_exact_adj:.3f} | {t_exact_adj / t_fwd:.1f}x |")
+    print(f"| image-step normal operator, composed ({domain.shape[0]} px domain) | "
+          f"{t_normal:.3f} | {t_normal / t_fwd:.1f}x |")
+    print(f"| image-step normal operator, written out | {t_written:.3f} | "
+          f"{t_written / t_fwd:.1f}x |")
     print(f"\nEFF vs exact warp-sum (all {dense.n_poses} poses, float64): relative L2 error "
           f"{rel:.4f}")
+    print(f"Composed normal operator / written out: {t_normal / t_written:.2f}x "
+          "(bit-identical results)")
 
 
 if __name__ == "__main__":

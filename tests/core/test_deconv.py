@@ -24,6 +24,7 @@ from napari_edgecme.core.deconv_prior import (
     shrink_threshold,
 )
 from napari_edgecme.core.deconv_solvers import conjugate_gradient
+from napari_edgecme.core.linop import MatrixOperator
 from napari_edgecme.core.metrics import aligned_psnr, psnr
 from napari_edgecme.core.progress import Progress, StopRequested
 from napari_edgecme.core.synth import densify_path, make_case, random_trajectory, sample_image
@@ -132,7 +133,7 @@ def test_conjugate_gradient_solves_a_spd_system(rng):
     a = rng.standard_normal((30, 30))
     a = a @ a.T + 30 * np.eye(30)
     b = rng.standard_normal(30)
-    gen = conjugate_gradient(lambda v: a @ v, b, np.zeros(30), 100, 1e-12)
+    gen = conjugate_gradient(MatrixOperator(a), b, np.zeros(30), 100, 1e-12)
     _, x = run(gen)
     np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-8, atol=1e-10)
 

@@ -7,6 +7,7 @@ from scipy.signal import fftconvolve
 
 from napari_edgecme import Intrinsics, pose_grid
 from napari_edgecme.core.lasso import QuadraticTerm, nonneg_lasso
+from napari_edgecme.core.linop import MatrixOperator
 from napari_edgecme.core.mdf import edge_profile_term, gradient_term, masked_eff_matrix, psf_basis
 from napari_edgecme.core.operators import EfficientFilterFlowWeights, PatchGrid
 
@@ -16,7 +17,7 @@ def test_nonneg_lasso_satisfies_the_kkt_conditions(rng):
     w_true = np.zeros(40)
     w_true[[3, 17, 29]] = [0.5, 0.3, 0.2]
     y = A @ w_true + 0.01 * rng.standard_normal(80)
-    term = QuadraticTerm(lambda w: A.T @ (A @ w), A.T @ y, float(y @ y))
+    term = QuadraticTerm.least_squares(MatrixOperator(A), y)
     lam = 0.05
     res = nonneg_lasso(term, lam, np.zeros(40), max_iter=5000, tol=1e-10)
     grad = A.T @ (A @ res.x) - A.T @ y + lam
@@ -35,7 +36,7 @@ def test_nonneg_lasso_satisfies_the_kkt_conditions(rng):
 def test_a_callback_stops_the_lasso_with_the_current_iterate(rng):
     A = rng.standard_normal((60, 30))
     y = A @ np.abs(rng.standard_normal(30))
-    term = QuadraticTerm(lambda w: A.T @ (A @ w), A.T @ y, float(y @ y))
+    term = QuadraticTerm.least_squares(MatrixOperator(A), y)
     full = nonneg_lasso(term, 0.1, np.zeros(30), max_iter=100, tol=0.0)
     assert full.nit > 7  # uninterrupted, it runs on
     seen = []

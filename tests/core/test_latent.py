@@ -77,7 +77,7 @@ def _h_step(f, beta):
 
 
 def _splitting_cost(s, f, h, beta):
-    residual = s["domain"].data_forward(f) - s["g"]
+    residual = s["domain"].data @ f - s["g"]
     fx, fy = grad(f)
     nonzero = np.count_nonzero((h[0] != 0) | (h[1] != 0))
     return (float(np.sum(residual ** 2))
@@ -89,7 +89,7 @@ def _quadratic_gradient(s, f, h, beta):
     """Gradient of Q(f) = ||M T f - g||^2 + beta ||grad f - h||^2 (the image step's)."""
     domain = s["domain"]
     fx, fy = grad(f)
-    return (2 * domain.data_adjoint(domain.data_forward(f) - s["g"])
+    return (2 * (domain.data.T @ (domain.data @ f - s["g"]))
             + 2 * beta * grad_adjoint(fx - h[0], fy - h[1]))
 
 

@@ -15,6 +15,7 @@ from napari_edgecme.core.deconv_solvers import (
 )
 from napari_edgecme.core.lasso import QuadraticTerm, iter_nonneg_lasso, nonneg_lasso
 from napari_edgecme.core.latent import iter_l0_latent, l0_latent
+from napari_edgecme.core.linop import MatrixOperator
 from napari_edgecme.core.progress import Progress, StopRequested, drive, relay, stop
 from napari_edgecme.core.synth import make_case, sample_image
 
@@ -37,7 +38,7 @@ def _lasso_term(seed=0):
     rng = np.random.default_rng(seed)
     A = rng.standard_normal((50, 20))
     y = A @ np.abs(rng.standard_normal(20))
-    return QuadraticTerm(lambda w: A.T @ (A @ w), A.T @ y, float(y @ y))
+    return QuadraticTerm.least_squares(MatrixOperator(A), y)
 
 
 def solvers(block):
@@ -55,7 +56,7 @@ def solvers(block):
         "rl": lambda: richardson_lucy_steps(domain, g, iterations=4),
         "wiener": lambda: wiener(domain, g, nsr=0.01, fourier=PatchFourier(domain, 8),
                                  border_iterations=4),
-        "conjugate-gradient": lambda: conjugate_gradient(lambda v: a @ v, b, np.zeros(25), 6,
+        "conjugate-gradient": lambda: conjugate_gradient(MatrixOperator(a), b, np.zeros(25), 6,
                                                          0.0),
         "l0-latent": lambda: iter_l0_latent(g, case.motion, 6e-3),
         "lasso": lambda: iter_nonneg_lasso(_lasso_term(), 0.1, np.zeros(20), max_iter=30,
@@ -176,7 +177,7 @@ def test_the_image_step_has_no_partial_result_so_a_stop_propagates(block):
 
 def test_relay_relabels_the_inner_records_and_closes_the_inner_solver():
     a, b = _spd()
-    inner = conjugate_gradient(lambda v: a @ v, b, np.zeros(25), 6, 0.0)
+    inner = conjugate_gradient(MatrixOperator(a), b, np.zeros(25), 6, 0.0)
 
     def outer():
         x = yield from relay(inner, lambda r: Progress("outer", 0, 1, "inner: " + r.message))

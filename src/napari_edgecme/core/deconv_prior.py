@@ -32,8 +32,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .linop import LinearOperator
+
 __all__ = [
     "ALPHAS",
+    "Gradient",
     "check_alpha",
     "grad",
     "grad_adjoint",
@@ -72,13 +75,19 @@ def grad(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     -------
     gx, gy : ndarray of shape (M, N)
         ``gx[:, j] = f[:, j + 1] - f[:, j]`` and ``gy[i] = f[i + 1] - f[i]``; the last
-        column of ``gx`` and the last row of ``gy`` are zero.
+        column of ``gx`` and the last row of ``gy`` are zero. Both are views of one
+        (2, M, N) array, the :class:`Gradient` operator's ``D f``.
     """
-    gx = np.zeros_like(f)
-    gy = np.zeros_like(f)
-    np.subtract(f[:, 1:], f[:, :-1], out=gx[:, :-1])
-    np.subtract(f[1:], f[:-1], out=gy[:-1])
+    gx, gy = _differences(f)
     return gx, gy
+
+
+def _differences(f: np.ndarray) -> np.ndarray:
+    """``(gx, gy)`` of :func:`grad` in one array of shape (2, M, N)."""
+    out = np.zeros((2, *f.shape), f.dtype)
+    np.subtract(f[:, 1:], f[:, :-1], out=out[0, :, :-1])
+    np.subtract(f[1:], f[:-1], out=out[1, :-1])
+    return out
 
 
 def grad_adjoint(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
@@ -93,6 +102,33 @@ def grad_adjoint(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
     out[:-1] -= gy[:-1]
     out[1:] += gy[:-1]
     return out
+
+
+class Gradient(LinearOperator):
+    """The finite differences ``D = (D_x, D_y)`` of :func:`grad` as an operator.
+
+    ``(M, N) -> (2, M, N)``: ``(D f)[0]`` is ``gx`` and ``(D f)[1]`` is ``gy`` of
+    :func:`grad`; the adjoint is :func:`grad_adjoint`, so ``D^T D`` is the (Neumann)
+    Laplacian of the image steps (KF's x sub-problem, Eq. 21's splitting).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        ``(M, N)``, the image.
+    dtype : dtype
+        float32 or float64.
+    """
+
+    def __init__(self, shape, dtype=np.float32):
+        self.shape_in = tuple(int(s) for s in shape)
+        self.shape_out = (2, *self.shape_in)
+        self.dtype = np.dtype(dtype)
+
+    def _forward(self, f):
+        return _differences(f)
+
+    def _adjoint(self, g):
+        return grad_adjoint(g[0], g[1])
 
 
 # --------------------------------------------------------------------------------------

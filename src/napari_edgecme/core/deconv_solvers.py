@@ -9,7 +9,11 @@ pixels are compared with ``g``,
 
 .. math::  E_{data}(f) = \\tfrac{\\lambda}{2} \\| M T f - g \\|^2 ,
 
-with ``M`` the crop to the observed rectangle. Pixels just outside the frame are
+with ``M`` the crop to the observed rectangle. ``M T`` is an operator composed from
+:class:`~napari_edgecme.core.linop.Crop` and the EFF (:attr:`LatentDomain.data`), and
+so is the image step's normal operator ``lam T^T M^T M T + beta D^T D``
+(:meth:`LatentDomain.normal`), which :func:`conjugate_gradient` inverts: the one dot
+test of the operators covers their adjoints. Pixels just outside the frame are
 free unknowns constrained by the data they blur into and by the prior, so no
 periodic or reflective assumption is made about the scene beyond the frame and no
 ringing frame appears at the border.
@@ -42,12 +46,14 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.lib.stride_tricks import sliding_window_view
 
-from .deconv_prior import grad, grad_adjoint, shrink_hyperlaplacian, shrink_threshold
+from .deconv_prior import Gradient, shrink_hyperlaplacian, shrink_threshold
+from .linop import Crop, LinearOperator
 from .motion import CameraMotion
 from .operators import FFT_WORKERS, EfficientFilterFlow
 from .progress import Progress, StopRequested, relay
 
 __all__ = [
+    "CirculantPreconditioner",
     "LatentDomain",
     "PatchFourier",
     "conjugate_gradient",
@@ -85,6 +91,12 @@ class LatentDomain:
         The observed rectangle inside the domain.
     op : EfficientFilterFlow
         ``T`` on the domain; array index ``(0, 0)`` is image pixel ``(row0 - pad, col0 - pad)``.
+    crop : Crop
+        ``M``: domain -> observed (h, w).
+    data : LinearOperator
+        ``M T``: domain -> observed (h, w), the operator of the data term.
+    gradient : Gradient
+        ``D``: domain -> (2, *shape), the finite differences of the prior.
     """
 
     def __init__(self, motion: CameraMotion, box, pad: int, stride=None, dtype=np.float32):
@@ -102,20 +114,15 @@ class LatentDomain:
         self.dtype = np.dtype(dtype)
         self.op = EfficientFilterFlow(motion, shape=self.shape, origin=self.origin,
                                       stride=stride, dtype=self.dtype)
+        self.crop = Crop(self.shape, self.inner, self.dtype)
+        self.data = self.crop @ self.op
+        self.gradient = Gradient(self.shape, self.dtype)
 
-    def embed(self, g: np.ndarray) -> np.ndarray:
-        """``M^T g``: observed (h, w) -> domain, zero outside the observed rectangle."""
-        out = np.zeros(self.shape, self.dtype)
-        out[self.inner] = g
-        return out
-
-    def data_forward(self, x: np.ndarray) -> np.ndarray:
-        """``M T x``: domain -> observed (h, w)."""
-        return self.op.forward(x)[self.inner]
-
-    def data_adjoint(self, r: np.ndarray) -> np.ndarray:
-        """``T^T M^T r``: observed (h, w) -> domain."""
-        return self.op.adjoint(self.embed(r))
+    def normal(self, lam: float, beta: float) -> LinearOperator:
+        """``lam T^T M^T M T + beta D^T D``, the operator of the image step."""
+        dtype = self.dtype.type
+        return (dtype(lam) * (self.data.T @ self.data)
+                + dtype(beta) * (self.gradient.T @ self.gradient))
 
     def extend(self, g: np.ndarray) -> np.ndarray:
         """The observation (h, w) mirrored (``reflect``) into the pad: domain-shaped."""
@@ -428,9 +435,13 @@ class PatchFourier:
 # conjugate gradients
 # --------------------------------------------------------------------------------------
 
-def conjugate_gradient(apply_a, b: np.ndarray, x0: np.ndarray, iterations: int, tol: float,
-                       precondition=None):
+def conjugate_gradient(normal: LinearOperator, b: np.ndarray, x0: np.ndarray,
+                       iterations: int, tol: float, precondition: LinearOperator | None = None):
     """(Preconditioned) conjugate gradients for ``A x = b``, A symmetric positive definite.
+
+    ``normal`` is ``A`` (e.g. :meth:`LatentDomain.normal`), ``precondition`` a
+    symmetric positive definite approximation of ``A^-1`` (e.g.
+    :meth:`CirculantPreconditioner.operator`), both operators on ``b``'s shape.
 
     A solver generator (:mod:`~napari_edgecme.core.progress`): yields a record after
     each iteration (``step`` ``k`` of ``total = iterations``, the relative residual in
@@ -438,12 +449,11 @@ def conjugate_gradient(apply_a, b: np.ndarray, x0: np.ndarray, iterations: int, 
     iteration) and returns ``x``; on
     :class:`~napari_edgecme.core.progress.StopRequested` it returns ``x`` at once.
     Stops when ``||b - A x|| <= tol ||b||`` or after ``iterations`` steps.
-    ``precondition(r)`` applies a symmetric positive definite approximation of
-    ``A^-1``. Inner products in float64.
+    Inner products in float64.
     """
     x = x0.copy()
-    r = b - apply_a(x)
-    z = precondition(r) if precondition is not None else r
+    r = b - normal @ x
+    z = precondition @ r if precondition is not None else r
     p = z.copy()
     rz = float(np.vdot(r, z))
     bnorm = math.sqrt(float(np.vdot(b, b))) or 1.0
@@ -452,11 +462,11 @@ def conjugate_gradient(apply_a, b: np.ndarray, x0: np.ndarray, iterations: int, 
         for k in range(1, iterations + 1):
             if res <= tol:
                 break
-            ap = apply_a(p)
+            ap = normal @ p
             alpha = rz / max(float(np.vdot(p, ap)), 1e-300)
             x += x.dtype.type(alpha) * p
             r -= r.dtype.type(alpha) * ap
-            z = precondition(r) if precondition is not None else r
+            z = precondition @ r if precondition is not None else r
             rz_new = float(np.vdot(r, z))
             p *= p.dtype.type(rz_new / max(rz, 1e-300))
             p += z
@@ -497,16 +507,33 @@ class CirculantPreconditioner:
         wx = 2.0 - 2.0 * np.cos(2 * np.pi * np.arange(self.shape[1] // 2 + 1) / self.shape[1])
         self.d2 = wy[:, None] + wx[None, :]
 
-    def operator(self, lam: float, beta: float):
+    def operator(self, lam: float, beta: float) -> LinearOperator:
         """The preconditioner for the image step with weights ``lam`` and ``beta``."""
         inv = (1.0 / (lam * self.k2 + beta * self.d2)).astype(self.dtype)
-        H, W = self.domain_shape
+        return _FourierMultiplier(inv, self.shape, self.domain_shape, self.dtype)
 
-        def apply(r):
-            rh = sfft.rfft2(r, s=self.shape, workers=FFT_WORKERS)
-            return sfft.irfft2(rh * inv, s=self.shape, workers=FFT_WORKERS)[:H, :W].astype(
-                self.dtype, copy=False)
-        return apply
+
+class _FourierMultiplier(LinearOperator):
+    """``P^T F^-1 diag(symbol) F P``: (H, W) zero-padded to ``fft_shape``, its half
+    spectrum multiplied by ``symbol``, cropped back to (H, W).
+
+    With a real symbol (the half spectrum of an even filter) the operator is
+    symmetric, its own adjoint.
+    """
+
+    def __init__(self, symbol, fft_shape, shape, dtype):
+        self.symbol = symbol
+        self.fft_shape = tuple(fft_shape)
+        self.shape_in = self.shape_out = tuple(shape)
+        self.dtype = np.dtype(dtype)
+
+    def _forward(self, r):
+        H, W = self.shape_in
+        rh = sfft.rfft2(r, s=self.fft_shape, workers=FFT_WORKERS)
+        return sfft.irfft2(rh * self.symbol, s=self.fft_shape, workers=FFT_WORKERS)[:H, :W].astype(
+            self.dtype, copy=False)
+
+    _adjoint = _forward
 
 
 # --------------------------------------------------------------------------------------
@@ -544,27 +571,28 @@ def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alp
         if solver == "fourier":
             fourier.set_observation(g)
         else:
-            b_data = domain.data_adjoint(g) * domain.dtype.type(lam)
-            pre = CirculantPreconditioner(domain).operator if precondition else None
+            b_data = (domain.data.T @ g) * domain.dtype.type(lam)
+            pre = CirculantPreconditioner(domain) if precondition else None
         yield running()
         for beta in betas:
             thr = shrink_threshold(beta, alpha)
             for _ in range(inner_iterations):
-                gx, gy = grad(x)
-                wx = shrink_hyperlaplacian(gx, beta, alpha, thr)
-                del gx
-                wy = shrink_hyperlaplacian(gy, beta, alpha, thr)
-                del gy
-                prior_rhs = grad_adjoint(wx, wy)
+                w = domain.gradient @ x
+                for plane in w:  # the w-step, one gradient image at a time
+                    plane[...] = shrink_hyperlaplacian(plane, beta, alpha, thr)
+                prior_rhs = domain.gradient.T @ w
                 prior_rhs *= domain.dtype.type(beta)
-                del wx, wy
+                del w
                 yield running()
                 if solver == "fourier":
                     x = yield from relay(fourier.solve(prior_rhs, lam, beta, border_iterations),
                                          running)
                 else:
-                    x = yield from relay(_cg_image_step(domain, b_data + prior_rhs, x, lam, beta,
-                                                        cg_iterations, cg_tol, pre), cg_record)
+                    x = yield from relay(
+                        conjugate_gradient(domain.normal(lam, beta), b_data + prior_rhs, x,
+                                           cg_iterations, cg_tol,
+                                           pre.operator(lam, beta) if pre is not None else None),
+                        cg_record)
                 k += 1
                 yield Progress("hyperlaplacian", k, total,
                                f"{name} {k}/{total} done (beta {beta:.3g})", iteration=k,
@@ -572,22 +600,6 @@ def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alp
     except StopRequested:
         pass
     return x
-
-
-def _cg_image_step(domain, b, x0, lam, beta, iterations, tol, precondition):
-    """The image step by :func:`conjugate_gradient` on the EFF normal equations."""
-    lam_c = domain.dtype.type(lam)
-    beta_c = domain.dtype.type(beta)
-
-    def apply_a(v):
-        out = domain.op.adjoint(domain.embed(domain.data_forward(v)))
-        out *= lam_c
-        gx, gy = grad(v)
-        out += beta_c * grad_adjoint(gx, gy)
-        return out
-
-    return conjugate_gradient(apply_a, b, x0, iterations, tol,
-                              precondition(lam, beta) if precondition else None)
 
 
 def richardson_lucy_steps(domain: LatentDomain, g: np.ndarray, *, iterations: int):
@@ -602,13 +614,13 @@ def richardson_lucy_steps(domain: LatentDomain, g: np.ndarray, *, iterations: in
     eps = domain.dtype.type(1e-3)
     x = np.maximum(domain.extend(g), eps)
     try:
-        norm = domain.data_adjoint(np.ones(domain.observed_shape, domain.dtype))
+        norm = domain.data.T @ np.ones(domain.observed_shape, domain.dtype)
         yield Progress("rl", 0, iterations, f"{name} 1/{iterations} running", iteration=0)
         seen = norm > 1e-3
         inv_norm = np.where(seen, 1.0 / np.where(seen, norm, 1.0), 0.0).astype(domain.dtype)
         for k in range(1, iterations + 1):
-            ratio = g / np.maximum(domain.data_forward(x), eps)
-            update = domain.data_adjoint(ratio)
+            ratio = g / np.maximum(domain.data @ x, eps)
+            update = domain.data.T @ ratio
             update *= inv_norm
             x = np.where(seen, x * update, x)
             yield Progress("rl", k, iterations, f"{name} {k}/{iterations} done", iteration=k,

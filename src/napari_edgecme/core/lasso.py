@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .linop import LinearOperator
 from .progress import Progress, StopRequested, drive
 
 __all__ = ["LassoResult", "QuadraticTerm", "iter_nonneg_lasso", "lipschitz_constant",
@@ -40,32 +41,42 @@ __all__ = ["LassoResult", "QuadraticTerm", "iter_nonneg_lasso", "lipschitz_const
 
 @dataclass
 class QuadraticTerm:
-    """``1/2 w^T Q w - b^T w + c/2`` given by the product ``Q w`` (symmetric PSD ``Q``).
+    """``1/2 w^T Q w - b^T w + c/2`` with ``Q`` a symmetric PSD operator.
 
     Attributes
     ----------
-    matvec : callable
-        ``w (n,) -> Q w (n,)``.
+    normal : LinearOperator
+        ``Q``, (n,) -> (n,) (for a least-squares term: ``A^T A``).
     linear : ndarray of shape (n,)
         ``b`` (for a least-squares term ``||A w - y||^2 / 2``: ``A^T y``).
     constant : float
         ``c`` (``||y||^2``), so that :meth:`value` is the least-squares residual.
     """
 
-    matvec: Callable[[np.ndarray], np.ndarray]
+    normal: LinearOperator
     linear: np.ndarray
     constant: float = 0.0
+
+    @classmethod
+    def least_squares(cls, operator: LinearOperator, target: np.ndarray) -> QuadraticTerm:
+        """``1/2 ||A w - y||^2``: ``Q = A^T A``, ``b = A^T y``, ``c = ||y||^2``."""
+        target = np.asarray(target, operator.dtype)
+        return cls(operator.T @ operator, operator.T @ target, float(target @ target))
+
+    def matvec(self, w: np.ndarray) -> np.ndarray:
+        """``Q w`` (n,) -> (n,)."""
+        return self.normal @ w
 
     def value(self, w: np.ndarray, Qw: np.ndarray | None = None) -> float:
         Qw = self.matvec(w) if Qw is None else Qw
         return float(0.5 * w @ Qw - self.linear @ w + 0.5 * self.constant)
 
     def __add__(self, other: QuadraticTerm) -> QuadraticTerm:
-        return QuadraticTerm(lambda w: self.matvec(w) + other.matvec(w),
-                             self.linear + other.linear, self.constant + other.constant)
+        return QuadraticTerm(self.normal + other.normal, self.linear + other.linear,
+                             self.constant + other.constant)
 
     def scaled(self, factor: float) -> QuadraticTerm:
-        return QuadraticTerm(lambda w: factor * self.matvec(w), factor * self.linear,
+        return QuadraticTerm(factor * self.normal, factor * self.linear,
                              factor * self.constant)
 
 

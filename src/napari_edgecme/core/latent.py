@@ -22,7 +22,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .deconv_prior import grad, grad_adjoint
 from .deconv_solvers import LatentDomain, PatchFourier
 from .motion import CameraMotion
 from .progress import Progress, StopRequested, drive
@@ -97,14 +96,14 @@ def iter_l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *
     solver.set_observation(blurred)
     f = domain.extend(blurred)
     betas = splitting_weights(lambda_f, kappa, beta_max)
-    gx = gy = None
+    gradient = domain.gradient  # D on the domain
+    hv = None  # the thresholded gradients (h, v), shape (2, *domain.shape)
     try:
         for k, beta in enumerate(betas, 1):
-            gx, gy = grad(f)
-            small = gx * gx + gy * gy < lambda_f / beta
-            gx[small] = 0
-            gy[small] = 0
-            prior = grad_adjoint(gx, gy)
+            hv = gradient @ f
+            small = hv[0] * hv[0] + hv[1] * hv[1] < lambda_f / beta
+            hv[:, small] = 0
+            prior = gradient.T @ hv
             prior *= blurred.dtype.type(beta)
             f = drive(solver.solve(prior, 1.0, beta))
             yield Progress("latent", k, len(betas),
@@ -114,7 +113,7 @@ def iter_l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *
         pass
     f = np.ascontiguousarray(f[domain.inner])
     if return_gradients:
-        if gx is None:
-            gx, gy = grad(domain.extend(blurred))
-        return f, np.stack([gx[domain.inner], gy[domain.inner]])
+        if hv is None:
+            hv = gradient @ domain.extend(blurred)
+        return f, np.ascontiguousarray(hv[(slice(None), *domain.inner)])
     return f

@@ -36,10 +36,12 @@ import scipy.sparse as sp
 
 from .camera import Intrinsics, displacements
 from .lasso import QuadraticTerm
+from .linop import LinearOperator, MatrixOperator
 from .motion import psf_matrix
 from .operators import FFT_WORKERS, PatchGrid
 
-__all__ = ["border_taper", "edge_profile_term", "gradient_term", "psf_basis"]
+__all__ = ["TileAutocorrelation", "border_taper", "edge_profile_term", "gradient_term",
+           "masked_eff_matrix", "psf_basis"]
 
 
 def psf_basis(model: str, intrinsics: Intrinsics, poses, grid: PatchGrid,
@@ -92,24 +94,52 @@ def gradient_term(latent, observed, grid: PatchGrid, basis: sp.csr_matrix) -> Qu
     auto = _lag_window((np.abs(pf) ** 2).sum(0), grid, K - 1)  # (R, 2K-1, 2K-1) lags
     cross = _lag_window((np.conj(pf) * pg).sum(0), grid, h)  # (R, K, K): sum_t p(t) d(t+u)
     energy = float(np.sum(observed_patches.astype(np.float64) ** 2))
-    # Q_r k = auto_r (*) k restricted to the K x K support: a circular convolution of
-    # size M >= 2K - 1 is exact there (each lag within +-(K-1) has a distinct residue)
-    M = sfft.next_fast_len(2 * K - 1, real=True)
-    circ = np.zeros((grid.n_patches, M, M), np.float32)
-    circ[:, :2 * K - 1, :2 * K - 1] = auto
-    auto_hat = sfft.rfft2(np.roll(circ, (-(K - 1), -(K - 1)), axis=(1, 2)), axes=(-2, -1))
-    B = basis.astype(np.float32)
-    BT = B.T.tocsr()
-    n_patches = grid.n_patches
+    normal = TileAutocorrelation(auto, basis)
+    linear = normal.basis_transpose @ cross.reshape(-1).astype(np.float64)
+    return QuadraticTerm(normal, linear, energy)
 
-    def matvec(w):  # small FFTs: one thread beats the pool
-        k = (B @ w.astype(np.float32)).reshape(n_patches, K, K)
-        conv = sfft.irfft2(sfft.rfft2(k, s=(M, M), axes=(-2, -1)) * auto_hat,
+
+class TileAutocorrelation(LinearOperator):
+    """``Q = sum_r B_r^T A_r B_r`` of :func:`gradient_term`: (n_poses,) -> (n_poses,).
+
+    ``A_r k`` correlates the PSF ``k`` (K, K) of tile ``r`` with the autocorrelation of
+    the tile's windowed latent patch, restricted to the K x K support; symmetric
+    positive semi-definite, its own adjoint. Computed in float32 (small FFTs, one
+    thread), in and out in float64.
+
+    Parameters
+    ----------
+    autocorrelation : ndarray of shape (n_patches, 2K - 1, 2K - 1)
+        Lags ``-(K - 1) .. K - 1`` per axis of each tile's autocorrelation.
+    basis : scipy.sparse matrix of shape (n_patches * K * K, n_poses)
+        :func:`psf_basis`.
+    """
+
+    def __init__(self, autocorrelation, basis: sp.spmatrix):
+        n_patches, L, _ = autocorrelation.shape
+        K = self.psf_size = (L + 1) // 2
+        # Q_r k = auto_r (*) k restricted to the K x K support: a circular convolution of
+        # size M >= 2K - 1 is exact there (each lag within +-(K-1) has a distinct residue)
+        M = self.fft_size = sfft.next_fast_len(2 * K - 1, real=True)
+        circ = np.zeros((n_patches, M, M), np.float32)
+        circ[:, :2 * K - 1, :2 * K - 1] = autocorrelation
+        self._auto_hat = sfft.rfft2(np.roll(circ, (-(K - 1), -(K - 1)), axis=(1, 2)),
+                                    axes=(-2, -1))
+        self.basis = basis.astype(np.float32)
+        #: ``B^T`` in CSR
+        self.basis_transpose = self.basis.T.tocsr()
+        self.n_patches = n_patches
+        self.shape_in = self.shape_out = (basis.shape[1],)
+        self.dtype = np.dtype(np.float64)
+
+    def _forward(self, w):  # small FFTs: one thread beats the pool
+        K, M = self.psf_size, self.fft_size
+        k = (self.basis @ w.astype(np.float32)).reshape(self.n_patches, K, K)
+        conv = sfft.irfft2(sfft.rfft2(k, s=(M, M), axes=(-2, -1)) * self._auto_hat,
                            s=(M, M), axes=(-2, -1))
-        return (BT @ conv[:, :K, :K].reshape(-1)).astype(np.float64)
+        return (self.basis_transpose @ conv[:, :K, :K].reshape(-1)).astype(np.float64)
 
-    linear = BT @ cross.reshape(-1).astype(np.float64)
-    return QuadraticTerm(matvec, linear, energy)
+    _adjoint = _forward
 
 
 def edge_profile_term(prediction, edge_profile, mask, grid: PatchGrid, basis: sp.csr_matrix
@@ -128,14 +158,9 @@ def edge_profile_term(prediction, edge_profile, mask, grid: PatchGrid, basis: sp
         As for :func:`gradient_term`.
     """
     matrix = masked_eff_matrix(prediction, mask, grid) @ basis  # (n_mask, n_poses)
-    matrix = sp.csr_matrix(matrix, dtype=np.float64)
+    operator = MatrixOperator(sp.csr_matrix(matrix, dtype=np.float64))  # M T_(I_p)
     target = np.asarray(edge_profile, np.float64)[np.asarray(mask, bool)]
-    mt = matrix.T.tocsr()
-
-    def matvec(w):
-        return mt @ (matrix @ w)
-
-    return QuadraticTerm(matvec, mt @ target, float(target @ target))
+    return QuadraticTerm.least_squares(operator, target)
 
 
 def masked_eff_matrix(image, mask, grid: PatchGrid) -> sp.csr_matrix:

@@ -38,7 +38,10 @@ def measurement_matrix(profiles: EdgeProfiles, model: str, intrinsics: Intrinsic
     Returns
     -------
     scipy.sparse.csr_matrix of shape (n * N, n_poses)
-        Column sums are at most one (mass beyond the offsets range is dropped).
+        Column sums are at most one (mass beyond the offsets range is dropped). As a
+        composable operator (in the operators' dot test):
+        ``MatrixOperator(measurement_matrix(...))``
+        (:class:`~napari_edgecme.core.linop.MatrixOperator`).
     """
     poses = check_poses(poses, model)
     pts = profiles.centroids if points is None else np.asarray(points, float).reshape(-1, 2)

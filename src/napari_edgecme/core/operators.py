@@ -10,9 +10,18 @@ weights ``w``, and linear in ``w`` for a fixed image. Both views exist for
   FFT and the results are overlap-added:
   ``T_w f = sum_r C_r^T (k_r * (omega_r . C_r f))`` with ``k_r = B_r w``.
 
-Every operator is a :class:`LinearOperator` with an exact adjoint; all of them are
-listed in :data:`OPERATORS`, over which one parametrised dot test runs
-(:func:`dottest`). Values outside the array are zero for every operator.
+Every operator is a :class:`~napari_edgecme.core.linop.LinearOperator` with an exact
+adjoint, so it composes with the crop, the finite differences and the other
+operators of :mod:`~napari_edgecme.core.linop` (``M T``, ``T^T T + beta D^T D``), and
+the one parametrised dot test of ``tests/core/test_operators.py`` covers it. Values
+outside the array are zero for every operator.
+
+Constructors follow what each view holds fixed: an image view is built from the
+motion it blurs with, ``WarpSum(motion, shape, origin)``; a weights view from the
+fixed image and the pose set its weights live on,
+``WarpSumWeights(image, model, intrinsics, poses, origin)`` -- the pose set as
+:func:`~napari_edgecme.core.mdf.psf_basis` and
+:func:`~napari_edgecme.core.measurement.measurement_matrix` take it.
 """
 
 from __future__ import annotations
@@ -25,71 +34,20 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ._validation import as_float_image, check_choice, check_positive, float_dtype
 from .camera import Intrinsics, check_poses, displacements, homographies
+from .linop import LinearOperator
 from .motion import CameraMotion, psf_matrix, psf_size_for
 
 __all__ = [
-    "OPERATORS",
     "EfficientFilterFlow",
     "EfficientFilterFlowWeights",
-    "LinearOperator",
     "PatchGrid",
     "WarpSum",
     "WarpSumWeights",
     "blur",
-    "dottest",
 ]
 
 #: Threads scipy.fft may use (-1: all cores).
 FFT_WORKERS = -1
-
-
-class LinearOperator:
-    """A linear map between arrays with its exact adjoint.
-
-    Attributes
-    ----------
-    shape_in, shape_out : tuple of int
-        Array shapes of the domain and the range.
-    dtype : numpy.dtype
-        float32 or float64; inputs are cast to it.
-    """
-
-    shape_in: tuple[int, ...]
-    shape_out: tuple[int, ...]
-    dtype: np.dtype
-
-    def forward(self, x: np.ndarray) -> np.ndarray:
-        return self._forward(self._check(x, self.shape_in, "x"))
-
-    def adjoint(self, y: np.ndarray) -> np.ndarray:
-        return self._adjoint(self._check(y, self.shape_out, "y"))
-
-    def _check(self, arr, shape, name) -> np.ndarray:
-        arr = np.asarray(arr)
-        if arr.shape != tuple(shape):
-            raise ValueError(
-                f"{type(self).__name__}: {name} must have shape {tuple(shape)}; got {arr.shape}"
-            )
-        return arr.astype(self.dtype, copy=False)
-
-    def _forward(self, x):  # pragma: no cover - abstract
-        raise NotImplementedError
-
-    def _adjoint(self, y):  # pragma: no cover - abstract
-        raise NotImplementedError
-
-
-def dottest(op: LinearOperator, rng=None) -> float:
-    """Relative mismatch of ``<A x, y>`` and ``<x, A^T y>`` for random ``x``, ``y``.
-
-    An exact adjoint gives round-off only (about 1e-6 in float32, 1e-14 in float64).
-    """
-    rng = np.random.default_rng(rng)
-    x = rng.standard_normal(op.shape_in).astype(op.dtype)
-    y = rng.standard_normal(op.shape_out).astype(op.dtype)
-    lhs = np.vdot(op.forward(x).astype(np.float64), y.astype(np.float64))
-    rhs = np.vdot(x.astype(np.float64), op.adjoint(y).astype(np.float64))
-    return float(abs(lhs - rhs) / max(abs(lhs), abs(rhs), 1e-30))
 
 
 # --------------------------------------------------------------------------------------
@@ -482,28 +440,3 @@ def blur(image, motion: CameraMotion, method: str = "eff", **kwargs) -> np.ndarr
     if img.ndim == 2:
         return op.forward(img)
     return np.stack([op.forward(img[..., c]) for c in range(img.shape[2])], -1)
-
-
-def _weights_view(cls):
-    def make(motion: CameraMotion, image, **kwargs):
-        return cls(image, motion.model, motion.intrinsics, motion.poses, **kwargs)
-    make.__name__ = f"{cls.__name__}.from_motion"
-    return make
-
-
-def _image_view(cls):
-    def make(motion: CameraMotion, image, **kwargs):
-        return cls(motion, shape=np.shape(image)[-2:], **kwargs)
-    make.__name__ = f"{cls.__name__}.from_motion"
-    return make
-
-
-#: Every blur operator, by name: ``OPERATORS[name](motion, image, dtype=...)`` builds it.
-#: Image views act on images shaped like ``image``; weight views hold ``image`` fixed and
-#: act on weights over ``motion.poses``.
-OPERATORS = {
-    "warp-sum": _image_view(WarpSum),
-    "warp-sum-weights": _weights_view(WarpSumWeights),
-    "eff": _image_view(EfficientFilterFlow),
-    "eff-weights": _weights_view(EfficientFilterFlowWeights),
-}
