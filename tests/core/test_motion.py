@@ -72,6 +72,38 @@ def test_rescale_scales_translations_and_keeps_angles(cam):
         m.rescale((120, 60))
 
 
+@pytest.mark.parametrize("model", ["translation", "inplane", "rotation"])
+def test_cropped_moves_the_principal_point_and_keeps_every_psf(cam, model):
+    poses = random_trajectory(model, cam, 9, 16, roll=2.0, rng=5)
+    m = CameraMotion.from_trajectory(poses, model, cam)
+    offset, shape = (30, 100), (24, 40)
+    crop = m.cropped(offset, shape)
+    assert crop.image_shape == shape
+    assert crop.intrinsics.focal_px == m.intrinsics.focal_px
+    cx, cy = m.intrinsics.principal_point
+    assert crop.intrinsics.principal_point == (cx - 100, cy - 30)
+    np.testing.assert_array_equal(crop.poses, m.poses)
+    # the PSF at crop pixel p is the PSF at image pixel p + offset (not a rescaled one)
+    local = np.array([[0, 0], [23, 39], [11.5, 20.25]])
+    size = m.psf_size()
+    np.testing.assert_allclose(crop.psf(local, size), m.psf(local + offset, size),
+                               atol=1e-12)
+    if model == "translation":  # the blur keeps its size; a rescale would shrink it
+        assert crop.blur_extent() == pytest.approx(m.blur_extent())
+        assert m.rescale((60, 80)).blur_extent() == pytest.approx(0.5 * m.blur_extent())
+    assert m.cropped((0, 0), cam.image_shape) is m
+    # a crop round trip through the motion file keeps it
+    assert CameraMotion.from_dict(crop.to_dict()) == crop
+
+
+@pytest.mark.parametrize("offset, shape", [((-1, 0), (10, 10)), ((0, 155), (10, 10)),
+                                           ((115, 0), (10, 10))])
+def test_a_crop_outside_the_image_is_refused(cam, offset, shape):
+    m = CameraMotion.identity("inplane", cam)
+    with pytest.raises(ValueError, match="does not lie inside the motion's 120x160 image"):
+        m.cropped(offset, shape)
+
+
 def test_recentred_moves_the_centroid_to_the_identity(cam):
     poses = random_trajectory("rotation", cam, 9, 16, rng=2) + np.array([0.001, -0.002, 0.0005])
     m = densify_path(poses, "rotation", cam)

@@ -295,6 +295,60 @@ class CameraMotion:
             poses[:, 1] *= target[0] / r0
         return CameraMotion(self.model, intr, poses, self.weights)
 
+    def cropped(self, offset, image_shape) -> CameraMotion:
+        """This motion for a crop of its image: the same camera, the principal point moved.
+
+        A crop is not a resized copy: every pixel keeps its size and its blur, so the
+        focal length and the poses stay and only the principal point moves by the
+        crop's offset. The PSF at crop pixel ``p`` is the PSF at image pixel
+        ``p + offset``.
+
+        Parameters
+        ----------
+        offset : tuple of float
+            ``(row, col)`` of the crop's first pixel in this motion's image.
+        image_shape : tuple of int
+            ``(rows, cols)`` of the crop (a trailing channel axis is ignored).
+
+        Returns
+        -------
+        CameraMotion
+
+        Raises
+        ------
+        ValueError
+            If the crop does not lie inside this motion's image.
+
+        Examples
+        --------
+        >>> from napari_edgecme import CameraMotion, Intrinsics
+        >>> m = CameraMotion.from_trajectory([[0, 0, 0], [0, 0, 0.01]], "inplane",
+        ...                                  Intrinsics.from_image_shape((100, 200)))
+        >>> crop = m.cropped((40, 150), (20, 30))
+        >>> crop.intrinsics.principal_point
+        (-50.5, 9.5)
+        >>> bool(np.allclose(crop.psf([[5, 7]], 9), m.psf([[45, 157]], 9)))
+        True
+        """
+        off = np.asarray(offset, dtype=float)
+        if off.shape != (2,) or not np.all(np.isfinite(off)):
+            raise ValueError(f"offset must be two finite numbers (row, col); got {offset!r}")
+        shape = tuple(int(s) for s in tuple(image_shape)[:2])
+        if len(shape) != 2 or min(shape) < 1:
+            raise ValueError(f"image_shape must be two positive integers; got {image_shape!r}")
+        rows, cols = self.image_shape
+        tol = 1e-6
+        if (off.min() < -tol or off[0] + shape[0] > rows + tol
+                or off[1] + shape[1] > cols + tol):
+            raise ValueError(
+                f"a {shape[0]}x{shape[1]} crop at (row {off[0]:g}, col {off[1]:g}) does not "
+                f"lie inside the motion's {rows}x{cols} image")
+        if shape == self.image_shape and not off.any():
+            return self
+        cx, cy = self.intrinsics.principal_point
+        intr = Intrinsics(self.intrinsics.focal_px, (cx - off[1], cy - off[0]), shape)
+        return CameraMotion(self.model, intr, self.poses, self.weights)
+
     def compact(self, threshold: float = 0.0) -> CameraMotion:
         """Drop poses whose weight is at most ``threshold`` times the largest weight."""
         keep = self.weights > threshold * self.weights.max()
