@@ -1,7 +1,8 @@
 """Data terms of the MDF updates as cheap quadratics over the pose weights ``w``.
 
 Both terms are built on the filter-flow geometry (:class:`~.operators.PatchGrid`)
-and the sparse PSF basis ``B`` (Eq. 9: the PSF of tile ``r`` is ``k_r = B_r w``), and
+and the sparse PSF basis ``B`` (Eq. 9: the PSF of tile ``r`` is ``k_r = B_r w``;
+:func:`~.operators.psf_basis`, the one the EFF operators use, re-exported here), and
 both come out as :class:`~.lasso.QuadraticTerm` objects whose products ``Q w`` never
 touch a full-size image:
 
@@ -34,21 +35,12 @@ import numpy as np
 import scipy.fft as sfft
 import scipy.sparse as sp
 
-from .camera import Intrinsics, displacements
 from .lasso import QuadraticTerm
 from .linop import LinearOperator, MatrixOperator
-from .motion import psf_matrix
-from .operators import FFT_WORKERS, PatchGrid
+from .operators import FFT_WORKERS, PatchGrid, psf_basis
 
 __all__ = ["TileAutocorrelation", "border_taper", "edge_profile_term", "gradient_term",
            "masked_eff_matrix", "psf_basis"]
-
-
-def psf_basis(model: str, intrinsics: Intrinsics, poses, grid: PatchGrid,
-              origin=(0.0, 0.0)) -> sp.csr_matrix:
-    """Sparse ``B`` (n_patches * K * K, n_poses): PSFs at the tile centres for pose weights."""
-    centres = grid.centres + np.asarray(origin, float)
-    return psf_matrix(displacements(model, intrinsics, poses, centres), grid.psf_size)
 
 
 def border_taper(shape, width: int) -> np.ndarray:

@@ -44,6 +44,7 @@ __all__ = [
     "WarpSum",
     "WarpSumWeights",
     "blur",
+    "psf_basis",
 ]
 
 #: Threads scipy.fft may use (-1: all cores).
@@ -306,7 +307,13 @@ class PatchGrid:
         return out[..., :crop[0], :crop[1]]
 
 
-def _eff_psf_basis(model, intrinsics, poses, grid: PatchGrid, origin, dtype):
+def psf_basis(model: str, intrinsics: Intrinsics, poses, grid: PatchGrid, origin=(0.0, 0.0),
+              dtype=np.float64):
+    """Sparse ``B`` (n_patches * K * K, n_poses) of Eq. 9: PSFs at the tile centres.
+
+    ``(B @ w).reshape(n_patches, K, K)`` are the PSFs ``k_r = B_r w`` of the EFF tiles
+    for pose weights ``w``; ``origin`` as for :class:`EfficientFilterFlow`.
+    """
     centres = grid.centres + np.asarray(origin, float)
     disp = displacements(model, intrinsics, poses, centres)
     return psf_matrix(disp, grid.psf_size, dtype)
@@ -355,8 +362,7 @@ class EfficientFilterFlow(LinearOperator):
             psf_size = _psf_size_at_centres(motion.model, motion.intrinsics, motion.poses,
                                             self.shape_in, origin, stride, overlap)
         self.grid = PatchGrid(self.shape_in, psf_size, stride, overlap)
-        B = _eff_psf_basis(motion.model, motion.intrinsics, motion.poses, self.grid, origin,
-                           np.float64)
+        B = psf_basis(motion.model, motion.intrinsics, motion.poses, self.grid, origin)
         K = self.grid.psf_size
         #: PSF per window, shape (n_patches, K, K)
         self.psfs = (B @ motion.weights).reshape(-1, K, K).astype(self.dtype)
@@ -404,7 +410,7 @@ class EfficientFilterFlowWeights(LinearOperator):
                                             overlap)
         self.grid = PatchGrid(shape, psf_size, stride, overlap)
         #: sparse PSF basis: ``(basis @ w).reshape(n_patches, K, K)`` are the window PSFs
-        self.basis = _eff_psf_basis(model, intrinsics, poses, self.grid, origin, self.dtype)
+        self.basis = psf_basis(model, intrinsics, poses, self.grid, origin, self.dtype)
         self._patch_hat = self.grid.rfft(self.grid.windowed_patches(image))
 
     def psfs(self, w) -> np.ndarray:
