@@ -239,7 +239,10 @@ def test_profiles_writes_a_profile_file_and_a_plot(cd, capsys):
     assert status == 0, err
     profiles = EdgeProfiles.load("p.json")
     assert len(profiles) > 0 and profiles.image_shape == (128, 128)
-    assert f"{len(profiles)} edge profiles" in err[-1]
+    assert f"{len(profiles)} edge profiles" in err[-2]
+    # what the set can constrain, in the summary: its confidence and coverage
+    assert f"median confidence {np.median(profiles.confidence):.2f}" in err[-1]
+    assert profiles.coverage_summary() in err[-1] and "/8 orientations" in err[-1]
     assert read_image("p.png").ndim == 3  # a matplotlib figure
 
 
@@ -260,7 +263,8 @@ def test_estimate_uses_profiles_from_a_file(cd, capsys):
                           "--model", "inplane", "--max-blur", "13", "--profiles", "p.json",
                           *FAST], capsys)
     assert status == 0, err
-    assert f"{n} edge profiles" in err[-1] or "falling back" in " ".join(err)
+    assert ((f"{n} edge profiles in " in err[-1] and "/8 orientations" in err[-1])
+            or "falling back" in " ".join(err))
 
 
 def test_psf_draws_the_field_at_the_motion_image_size(cd, capsys):

@@ -416,6 +416,12 @@ def _estimate_summary(result, requested: str, max_blur: float, focal_source: str
             f"{info.focal_px:.0f} px from {focal_source}")
     if info.n_profiles:
         text += f", {info.n_profiles} edge profiles"
+        profiles = getattr(result, "profiles", None)
+        if profiles is not None and len(profiles):
+            cov = profiles.coverage()
+            text += (f" in {cov['orientation_bins']}/8 orientations"
+                     + (f" and {cov['cells']}/9 image cells" if cov["cells"] is not None
+                        else ""))
     text += f", {info.seconds:.1f} s)"
     if not info.converged:
         text += f"; {info.message}"
@@ -564,6 +570,9 @@ def cmd_profiles(args, console: _Console) -> int:
     wrote = ", ".join(str(p) for _, p in outputs)
     console.info(f"{len(profiles)} edge profiles (max blur {max_blur:g} px, {seconds:.1f} s);"
                  f" wrote {wrote}")
+    if len(profiles):
+        console.info(f"median confidence {np.median(profiles.confidence):.2f}; "
+                     + profiles.coverage_summary())
     return EXIT_OK
 
 
