@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 from napari.utils import progress
 
+from napari_edgecme._widgets._psf_view import BACKGROUND, psf_glyphs
 from napari_edgecme._widgets.camera_motion import CameraMotionWidget, psf_grid
+from napari_edgecme.core.camera import Intrinsics
 from napari_edgecme.core.estimate import DEFAULTS, default_max_blur
 from napari_edgecme.core.motion import CameraMotion
 
@@ -80,9 +82,12 @@ def test_a_run_adds_an_aligned_psf_field_and_latent_carrying_the_motion(setup, w
     assert latent.metadata["edgecme_motion"] == field.metadata["edgecme_motion"]
 
     # the PSF field is the motion's, drawn over the image: same grid, scale and translate
-    assert field.data.dtype == np.float32 and field.data.shape == (112, 112)
-    np.testing.assert_array_equal(field.data, motion.psf_field(grid=psf_grid((112, 112))))
-    assert field.blending == "additive"
+    glyphs = psf_glyphs(motion, psf_grid((112, 112)))
+    assert field.rgb and field.data.shape == (112, 112, 4)
+    np.testing.assert_array_equal(field.data, glyphs.rgba)
+    assert field.blending == "translucent"
+    assert field.metadata["edgecme_psf_enlargement"] == glyphs.enlargement >= 2
+    assert f"each PSF drawn {glyphs.enlargement}x its size" in s.widget.status.text()
     for layer in (field, latent):
         np.testing.assert_allclose(layer.scale, SCALE)
         np.testing.assert_allclose(layer.translate, TRANSLATE)
@@ -105,13 +110,19 @@ def test_the_latent_preview_updates_while_xu_refines(setup, wait_for_run):
     def on_inserted(event):
         inserted.append(event.value)
         names.append(event.value.name)
-        event.value.events.data.connect(lambda _event: updates.append(1))
+        event.value.events.data.connect(lambda _event: updates.append(
+            (s.viewer.layers.selection.active, event.value.opacity,
+             s.viewer.layers.index(event.value))))
 
     s.viewer.layers.events.inserted.connect(on_inserted)
     s.widget.run_button.click()
     wait_for_run(s.widget)
     preview = inserted[0]
     assert names[0] == "shaken latent (preview)"
+    # while running: see-through, just above the photo, and the photo stays selected
+    for active, opacity, index in updates[:-1]:
+        assert active is s.image and opacity < 1.0 and index == 1
+    assert preview.opacity == 1.0 and not preview.visible  # the result: hidden, opaque
     assert len(updates) >= 2  # refined by the next iterations, then the final latent
     assert preview.name == "shaken latent"  # the preview became the result
     assert preview is s.viewer.layers["shaken latent"]
@@ -193,7 +204,57 @@ def test_rgb_images_are_estimated(qtbot, viewer_model, edge_case, wait_for_run):
     widget.run_button.click()
     wait_for_run(widget)
     assert widget.runner.outcome == "done"
-    assert viewer_model.layers["colour PSF field"].data.shape == (112, 112)
+    assert viewer_model.layers["colour PSF field"].data.shape == (112, 112, 4)
+
+
+def _principal_axis(weights: np.ndarray) -> tuple[float, float]:
+    """Angle (degrees, of the row/col axes) and elongation of a weight image's 2nd moments."""
+    r, c = np.indices(weights.shape, dtype=float)
+    total = weights.sum()
+    mr, mc = (weights * r).sum() / total, (weights * c).sum() / total
+    crr = (weights * (r - mr) ** 2).sum() / total
+    ccc = (weights * (c - mc) ** 2).sum() / total
+    crc = (weights * (r - mr) * (c - mc)).sum() / total
+    low, high = np.linalg.eigvalsh([[crr, crc], [crc, ccc]])
+    return float(np.degrees(0.5 * np.arctan2(2 * crc, ccc - crr))), high / max(low, 1e-12)
+
+
+def test_the_psf_field_shows_each_streak_enlarged_in_its_direction():
+    """Each drawn glyph's principal axis is its PSF's within 10 degrees (issue 15, item 6)."""
+    cam = Intrinsics.from_image_shape((300, 400))
+    t = np.linspace(0.0, 1.0, 40)
+    # a slide plus a turn about the lens axis: streaks of different directions and lengths
+    motion = CameraMotion.from_trajectory(np.stack([4 * t, 1 * t, 0.03 * t], -1), "inplane",
+                                          cam)
+    glyphs = psf_glyphs(motion, psf_grid(cam.image_shape))
+    cell = min(300 / 5, 400 / 7)
+    assert psf_grid(cam.image_shape) == (5, 7)
+    assert glyphs.rgba.shape == (300, 400, 4) and glyphs.enlargement >= 2
+    assert glyphs.boxes[0][2] >= 0.5 * cell  # the largest PSF fills most of its cell
+    checked = 0
+    for (r0, c0, side), psf in zip(glyphs.boxes, glyphs.psfs, strict=True):
+        tile = glyphs.rgba[r0:r0 + side, c0:c0 + side]
+        assert tile.shape[:2] == (side, side)  # every tile inside the image here
+        drawn = np.clip((tile[..., 0] - BACKGROUND) / (1 - BACKGROUND), 0, 1)  # red channel
+        true_angle, elongation = _principal_axis(psf)
+        if elongation < 3:  # a round blob has no direction to compare
+            continue
+        angle, _ = _principal_axis(drawn)
+        diff = abs((angle - true_angle + 90) % 180 - 90)
+        assert diff < 10, (r0, c0, angle, true_angle)
+        checked += 1
+        # enlarged: the glyph's spread is the PSF's times the stated factor
+        spread = np.sqrt(np.sum(np.indices(drawn.shape) ** 2 * drawn) / drawn.sum()
+                         - (np.sum(np.indices(drawn.shape) * drawn, axis=(1, 2))
+                            / drawn.sum()) ** 2)
+        assert spread.max() > 0.5 * glyphs.enlargement
+    assert checked >= 10
+    # a neutral gray tile under every glyph, transparent between tiles
+    r0, c0, side = glyphs.boxes[0]
+    corner = glyphs.rgba[r0, c0]
+    np.testing.assert_allclose(corner[:3], BACKGROUND, atol=1e-6)
+    assert 0.8 < corner[3] < 1.0
+    assert glyphs.rgba[0, 0, 3] == 0
 
 
 def test_psf_grid_has_square_cells():

@@ -36,7 +36,8 @@ def setup(qtbot, viewer_model, photo_case):
 def test_defaults_are_the_engines(setup):
     w = setup.widget
     assert w.method_combo.value == "hyperlaplacian"
-    assert w.parameters() == {"lam": DEFAULTS["hyperlaplacian"]["lam"],
+    assert w.parameters() == {"lambda_f": pytest.approx(DEFAULTS["hyperlaplacian"]["lambda_f"],
+                                                           rel=1e-4),
                               "alpha": pytest.approx(DEFAULTS["hyperlaplacian"]["alpha"]),
                               "solver": DEFAULTS["hyperlaplacian"]["solver"]}
     assert w.motion_combo.value is setup.image  # the image's own (true) motion
@@ -122,8 +123,8 @@ def test_no_motion_is_refused_on_the_main_thread(qtbot, viewer_model, photo_case
     assert "choose a motion" in error
 
 
-def test_a_motion_of_another_aspect_ratio_gives_a_notification_and_no_layer(
-        qtbot, viewer_model, photo_case, notifications, wait_for_run):
+def test_a_motion_that_fits_neither_as_crop_nor_as_copy_is_refused_before_running(
+        qtbot, viewer_model, photo_case, notifications):
     wide = viewer_model.add_image(np.zeros((96, 150), np.float32) + 0.5, name="wide")
     viewer_model.add_image(photo_case.blurred, name="photo",
                            metadata={"edgecme_motion": photo_case.motion.to_dict()})
@@ -132,12 +133,94 @@ def test_a_motion_of_another_aspect_ratio_gives_a_notification_and_no_layer(
     widget.reset_choices()
     widget.image_combo.value = wide
     assert widget.motion_combo.value is viewer_model.layers["photo"]
+    assert widget.motion_hint.text().startswith("Does not fit: the motion is for a 96x96")
     widget.run_button.click()
-    wait_for_run(widget)
-    assert widget.runner.outcome == "failed"
+    assert not widget.runner.is_running and widget.runner.outcome == "refused"
     assert [layer.name for layer in viewer_model.layers] == ["wide", "photo"]
     (error,) = notifications.texts("error")
-    assert error.startswith("Deconvolution: ") and "aspect ratio" in error
+    assert error.startswith("Deconvolution: the motion is for a 96x96 image; this image is "
+                            "96x150 and neither a crop")
+    assert widget.status.text().startswith("Deconvolution: not run: the motion is for")
+
+
+def test_a_crop_placed_by_its_translate_gets_the_motion_moved_not_rescaled(
+        qtbot, viewer_model, photo_case, wait_for_run, notifications):
+    """The issue's case: a small crop of the estimated image is deconvolved with its motion."""
+    full = viewer_model.add_image(photo_case.blurred, name="photo", scale=SCALE,
+                                  translate=TRANSLATE,
+                                  metadata={"edgecme_motion": photo_case.motion.to_dict()})
+    r, c = 40, 30
+    crop_data = photo_case.blurred[r:r + 24, c:c + 32]
+    crop = viewer_model.add_image(crop_data, name="crop", scale=SCALE,
+                                  translate=(TRANSLATE[0] + SCALE[0] * r,
+                                             TRANSLATE[1] + SCALE[1] * c))
+    widget = DeconvolutionWidget(viewer_model)
+    qtbot.addWidget(widget)
+    widget.reset_choices()
+    widget.image_combo.value = crop
+    assert widget.motion_combo.value is full
+    fit = widget.fitted_motion()
+    expected = photo_case.motion.cropped((r, c), (24, 32))
+    assert fit.motion == expected and not fit.guess
+    assert "a 24x32 crop at (row 40, col 30) of the motion's 96x96 image" in fit.note
+    assert "crop at (row 40, col 30)" in widget.motion_hint.text()
+    # the PSFs are the full image's at the same pixels, not a 4x smaller rescaled blur
+    points = np.array([[3.0, 5.0], [20.0, 28.0]])
+    size = photo_case.motion.psf_size()
+    np.testing.assert_allclose(fit.motion.psf(points, size),
+                               photo_case.motion.psf(points + np.array([r, c]), size), atol=1e-12)
+    widget.run_button.click()
+    wait_for_run(widget)
+    assert widget.runner.outcome == "done"
+    restored = viewer_model.layers["crop deblurred"]
+    assert CameraMotion.from_dict(restored.metadata["edgecme_motion"]) == expected
+    assert notifications.texts("warning") == []
+
+
+def test_a_smaller_image_at_the_origin_is_a_guess_said_as_a_warning(
+        qtbot, viewer_model, photo_case, notifications):
+    viewer_model.add_image(photo_case.blurred, name="photo",
+                           metadata={"edgecme_motion": photo_case.motion.to_dict()})
+    crop = viewer_model.add_image(photo_case.blurred[:24, :40], name="cut")
+    half = viewer_model.add_image(photo_case.blurred[::2, ::2], name="half")
+    widget = DeconvolutionWidget(viewer_model)
+    qtbot.addWidget(widget)
+    widget.reset_choices()
+    widget.image_combo.value = crop
+    fit = widget.fitted_motion()
+    assert fit.guess and fit.motion == photo_case.motion.cropped((0, 0), (24, 40))
+    assert "taken as a crop at the top-left corner" in widget.motion_hint.text()
+    widget.image_combo.value = half
+    fit = widget.fitted_motion()
+    assert fit.guess and fit.motion == photo_case.motion.rescale((48, 48))
+    assert "taken as a resized copy" in fit.note
+    # a resized copy laid over the image by its scale is no guess
+    half.scale = (2.0, 2.0)
+    half.translate = (0.5, 0.5)
+    fit = widget.fitted_motion()
+    assert not fit.guess and fit.motion == photo_case.motion.rescale((48, 48))
+    widget.image_combo.value = crop
+    widget.run_button.click()
+    assert widget.runner.is_running
+    (warning,) = notifications.texts("warning")
+    assert "taken as a crop at the top-left corner" in warning
+    widget.runner.cancel()
+
+
+def test_no_motion_is_said_under_the_motion_choice_not_only_in_a_toast(qtbot, viewer_model,
+                                                                       photo_case):
+    viewer_model.add_image(photo_case.blurred, name="plain")
+    widget = DeconvolutionWidget(viewer_model)
+    qtbot.addWidget(widget)
+    widget.reset_choices()
+    assert widget.motion_hint.text().startswith("No motion yet: estimate one with "
+                                                "'Camera motion'")
+    widget.run_button.click()
+    assert widget.status.text().startswith("Deconvolution: not run: choose a motion")
+    viewer_model.add_image(photo_case.blurred, name="photo",
+                           metadata={"edgecme_motion": photo_case.motion.to_dict()})
+    widget.reset_choices()
+    assert widget.motion_hint.text().startswith("inplane motion, ")
 
 
 def test_cancel_mid_run_stops_quickly_and_leaves_no_layer(qtbot, setup):

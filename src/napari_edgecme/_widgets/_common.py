@@ -24,6 +24,14 @@ worker is taken for a deleted Qt object and the worker never emits ``finished``
 warnings to notifications itself depends on its version. The worker class is
 superqt's plain ``GeneratorWorker``, so this module alone decides what is shown.
 
+What reaches napari is throttled: the engine may yield thousands of records a
+second (one per solver iteration), and each update of napari's progress bar, of the
+status line or of a preview layer costs milliseconds on the main thread (a repaint
+of the activity dock, a texture upload). Records are coalesced: the newest one is
+shown at most every :attr:`EngineRunner.UPDATE_INTERVAL_MS`, together with the
+newest preview that arrived since the last update; the engine's records themselves
+are not changed or dropped on its side.
+
 The handlers run one at a time, in the order the worker emitted its signals:
 napari's progress bars and notifications call ``QApplication.processEvents()``
 while they repaint, so without care the worker's next signals (even ``returned``
@@ -37,6 +45,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections import deque
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
@@ -48,13 +57,20 @@ from napari.layers import Image, Layer
 from napari.qt.threading import create_worker
 from napari.utils import progress
 from napari.utils.notifications import show_error, show_info, show_warning
-from qtpy.QtCore import QTimer
+from qtpy.QtCore import QEvent, QObject, Qt, QTimer
 from qtpy.QtWidgets import (
     QCheckBox,
+    QDockWidget,
     QDoubleSpinBox,
+    QFrame,
     QHBoxLayout,
     QLabel,
+    QLayout,
+    QMainWindow,
+    QProgressBar,
     QPushButton,
+    QScrollArea,
+    QVBoxLayout,
     QWidget,
 )
 from superqt.utils import GeneratorWorker
@@ -73,8 +89,10 @@ __all__ = [
     "EngineRunner",
     "Failed",
     "MaxBlurControl",
+    "RunControls",
     "default_focal_px",
     "deferred_draw",
+    "dock_layout",
     "first_line",
     "focal_from_layer",
     "image_layers",
@@ -284,26 +302,49 @@ class EngineRunner:
         Run is disabled while a job runs; Cancel only then.
     status : QLabel
         Shows the latest progress message and the outcome.
+    meter : QProgressBar, optional
+        A progress bar in the dock: percentage and time left, shown while running.
     """
 
+    #: Shortest interval (ms) between two updates of the status, the progress bars
+    #: and the preview (records in between are coalesced; see the module notes).
+    UPDATE_INTERVAL_MS = 100
+
     def __init__(self, owner: QWidget, title: str, run_button: QPushButton,
-                 cancel_button: QPushButton, status: QLabel):
+                 cancel_button: QPushButton, status: QLabel,
+                 meter: QProgressBar | None = None):
         self.title = title
         self._run_button = run_button
         self._cancel_button = cancel_button
         self._status = status
+        self._meter = meter
         self._worker: GeneratorWorker | None = None
         self._gen: Generator | None = None
         self._alive = True
         self._queue: deque = deque()
         self._delivering = False
         self._outcome = ""
+        self._pending: Progress | None = None
+        self._pending_preview: Progress | None = None
+        self._last_update = -math.inf
+        self._started_at = 0.0
+        # the runner's own timer, not a child of the owner: records may still arrive
+        # (and be dropped) after the owner is gone
+        self._timer = QTimer()
+        self._timer.setSingleShot(True)
+        self._timer.timeout.connect(lambda: self._deliver(self._update))
+        #: Progress records received in the current (or last) run.
+        self.n_records = 0
+        #: Updates of the display they caused (at most one per interval).
+        self.n_updates = 0
         self.progress_bar: progress | None = None
         self._on_result: Callable = _ignore
-        self._on_record: Callable = _ignore
+        self._on_preview: Callable = _ignore
         self._on_end: Callable = _ignore
         cancel_button.setEnabled(False)
         cancel_button.clicked.connect(self.cancel)
+        if meter is not None:
+            meter.setVisible(False)
         # a lambda holding the runner, not the widget: called while the widget dies
         owner.destroyed.connect(lambda *_: self._owner_destroyed())
 
@@ -315,11 +356,12 @@ class EngineRunner:
 
     @property
     def outcome(self) -> str:
-        """How the last run ended: ``""`` (none yet), ``"done"``, ``"failed"``, ``"cancelled"``."""
+        """How the last run ended: ``""`` (none yet), ``"done"``, ``"failed"``,
+        ``"cancelled"``, or ``"refused"`` (not started: see :meth:`refuse`)."""
         return self._outcome
 
     # -- control ---------------------------------------------------------------------------
-    def start(self, gen: Generator, on_result: Callable, *, on_record: Callable | None = None,
+    def start(self, gen: Generator, on_result: Callable, *, on_preview: Callable | None = None,
               on_end: Callable | None = None) -> GeneratorWorker | None:
         """Run ``gen`` (an ``iter_*`` generator, not started yet) in a worker thread.
 
@@ -331,8 +373,9 @@ class EngineRunner:
         on_result : callable
             ``on_result(result)`` on the main thread when the run completed; returns
             an optional summary line for the status label.
-        on_record : callable, optional
-            ``on_record(progress)`` on the main thread for each record (e.g. previews).
+        on_preview : callable, optional
+            ``on_preview(progress)`` on the main thread with the newest record that
+            carries a preview, at most once per :attr:`UPDATE_INTERVAL_MS`.
         on_end : callable, optional
             ``on_end(outcome)`` on the main thread after every run, whatever its
             outcome (``"done"``, ``"failed"``, ``"cancelled"``): clean-up of transient
@@ -347,9 +390,13 @@ class EngineRunner:
             return None
         self._gen = gen
         self._on_result = on_result
-        self._on_record = on_record or _ignore
+        self._on_preview = on_preview or _ignore
         self._on_end = on_end or _ignore
         self._outcome = ""
+        self._pending = self._pending_preview = None
+        self._last_update = -math.inf
+        self._started_at = time.perf_counter()
+        self.n_records = self.n_updates = 0
         self.progress_bar = progress(total=0, desc=self.title)
         handlers = {"yielded": self._on_yielded, "returned": self._on_returned,
                     "warned": self._on_warned, "errored": self._on_errored,
@@ -362,6 +409,10 @@ class EngineRunner:
         self._run_button.setEnabled(False)
         self._cancel_button.setEnabled(True)
         self._status.setText(f"{self.title}: starting…")
+        if self._meter is not None:
+            self._meter.setRange(0, 0)  # busy until the first record
+            self._meter.setFormat("starting…")
+            self._meter.setVisible(True)
         worker.start()
         return worker
 
@@ -373,6 +424,23 @@ class EngineRunner:
         if self._alive:
             self._cancel_button.setEnabled(False)
             self._status.setText(f"{self.title}: cancelling…")
+
+    def refuse(self, message: str) -> None:
+        """Say on the status line and in one error notification why a run did not start.
+
+        For the checks a widget makes on the main thread before :meth:`start`
+        (no image chosen, no motion, ...); the outcome becomes ``"refused"``.
+        """
+        if self.is_running:
+            return
+        self._outcome = "refused"
+        self._status.setText(f"{self.title}: not run: {message}")
+        show_error(f"{self.title}: {message}")
+
+    def clear_status(self) -> None:
+        """Empty the status line (e.g. another image was chosen) unless a job is running."""
+        if not self.is_running:
+            self._status.setText("")
 
     # -- worker signals (main thread) ---------------------------------------------------------
     def _deliver(self, handler: Callable, *args) -> None:
@@ -395,11 +463,33 @@ class EngineRunner:
             raise error
 
     def _on_yielded(self, record) -> None:
+        """Keep the newest record (and preview); show them now or when the interval ends."""
         if not isinstance(record, Progress) or self._worker is None:
             return
+        self.n_records += 1
+        self._pending = record
+        if record.preview is not None:
+            self._pending_preview = record
+        wait = self._last_update + self.UPDATE_INTERVAL_MS / 1e3 - time.perf_counter()
+        if wait <= 0:
+            self._timer.stop()
+            self._update()
+        elif not self._timer.isActive():
+            self._timer.start(max(1, math.ceil(wait * 1e3)))
+
+    def _update(self) -> None:
+        """Show the newest record: status, dock meter, napari's progress bar, preview."""
+        record, preview = self._pending, self._pending_preview
+        self._pending = self._pending_preview = None
+        if record is None or self._worker is None:
+            return
+        self._last_update = time.perf_counter()
+        self.n_updates += 1
         if self._alive:
             self._status.setText(f"{self.title}: {record.message or 'running'}")
-            self._on_record(record)
+            self._show_meter(record)
+            if preview is not None:
+                self._on_preview(preview)
         bar = self.progress_bar
         if bar is not None:
             if bar.total != record.total:
@@ -409,7 +499,29 @@ class EngineRunner:
             if record.step > bar.n:
                 bar.update(record.step - bar.n)
 
+    def _show_meter(self, record: Progress) -> None:
+        meter = self._meter
+        if meter is None:
+            return
+        if record.total <= 0:
+            meter.setRange(0, 0)
+            meter.setFormat("running…")
+            return
+        fraction = min(1.0, max(0.0, record.step / record.total))
+        meter.setRange(0, 1000)
+        meter.setValue(round(1000 * fraction))
+        text = f"{100 * fraction:.0f}%"
+        left = time_left(time.perf_counter() - self._started_at, fraction)
+        if left:
+            text += f", {left}"
+        meter.setFormat(text)
+
+    def _drop_pending(self) -> None:
+        self._timer.stop()
+        self._pending = self._pending_preview = None
+
     def _on_returned(self, result) -> None:
+        self._drop_pending()
         if isinstance(result, Failed):
             self._outcome = "failed"
             if result.error is None:
@@ -440,12 +552,14 @@ class EngineRunner:
             self._status.setText(f"{self.title} failed: {first_line(exc)}")
 
     def _on_aborted(self) -> None:
+        self._drop_pending()
         self._outcome = "cancelled"
         if self._alive:
             show_info(f"{self.title}: cancelled")
             self._status.setText(f"{self.title}: cancelled")
 
     def _on_finished(self) -> None:
+        self._drop_pending()
         if self.progress_bar is not None:
             self.progress_bar.close()
             self.progress_bar = None
@@ -460,13 +574,68 @@ class EngineRunner:
         if self._alive:
             self._run_button.setEnabled(True)
             self._cancel_button.setEnabled(False)
+            if self._meter is not None:
+                self._meter.setVisible(False)
             self._on_end(self._outcome)
-        self._on_result = self._on_record = self._on_end = _ignore
+        self._on_result = self._on_preview = self._on_end = _ignore
 
     def _owner_destroyed(self) -> None:
         self._alive = False
         if self._worker is not None:
             self._worker.quit()
+
+
+def time_left(elapsed: float, fraction: float) -> str:
+    """``"about 40 s left"`` from the time a run took so far and the fraction done.
+
+    Empty while too little is known (under a second, or under 2% done).
+    """
+    if elapsed < 1.0 or fraction < 0.02 or fraction >= 1.0:
+        return ""
+    left = elapsed * (1.0 - fraction) / fraction
+    if left < 60:
+        return f"about {max(1, round(left))} s left"
+    return f"about {round(left / 60)} min left"
+
+
+class RunControls(QWidget):
+    """Run and Cancel buttons, a progress meter and a status line, with their runner.
+
+    Parameters
+    ----------
+    owner : QWidget
+        The dock widget whose runs these are (see :class:`EngineRunner`).
+    title : str
+        Prefix of the status line, progress bar and notifications.
+    run_text, run_tip : str
+        Label and tooltip of the Run button.
+    cancel_tip : str
+        Tooltip of the Cancel button.
+    """
+
+    def __init__(self, owner: QWidget, title: str, run_text: str = "Run", run_tip: str = "",
+                 cancel_tip: str = "Stop the run now; nothing is added to the layers"):
+        super().__init__(owner)
+        self.run_button = QPushButton(run_text)
+        self.run_button.setToolTip(run_tip)
+        self.cancel_button = QPushButton("Cancel")
+        self.cancel_button.setToolTip(cancel_tip)
+        self.meter = QProgressBar()
+        self.meter.setToolTip("How far the run is, and about how long it has left")
+        self.meter.setTextVisible(True)
+        self.status = QLabel("")
+        self.status.setWordWrap(True)
+        buttons = QHBoxLayout()
+        buttons.setContentsMargins(0, 0, 0, 0)
+        buttons.addWidget(self.run_button)
+        buttons.addWidget(self.cancel_button)
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addLayout(buttons)
+        layout.addWidget(self.meter)
+        layout.addWidget(self.status)
+        self.runner = EngineRunner(owner, title, self.run_button, self.cancel_button,
+                                   self.status, meter=self.meter)
 
 
 def _ignore(*_args, **_kwargs):
@@ -516,15 +685,23 @@ def _disconnect(emitter, callback) -> None:
 class MaxBlurControl(QWidget):
     """Largest blur extent to look for, in pixels: "auto" (the engine's default) or a value.
 
-    Auto is :func:`~napari_edgecme.core.estimate.default_max_blur` of the image:
-    4% of its longer side, at least 15 px.
+    Auto is :func:`~napari_edgecme.core.estimate.default_max_blur` of the chosen
+    image (4% of its longer side, at least 15 px): the one computation every widget
+    shows and runs with.
+
+    Parameters
+    ----------
+    image_combo : magicgui ComboBox, optional
+        The widget's image choice: while on auto, the value shown follows it.
     """
 
-    def __init__(self, parent: QWidget | None = None):
+    def __init__(self, image_combo=None, parent: QWidget | None = None):
         super().__init__(parent)
+        self._combo = image_combo
         self.auto = QCheckBox("auto")
         self.auto.setChecked(True)
-        self.auto.setToolTip("4% of the image's longer side, at least 15 px")
+        self.auto.setToolTip("Auto: 4% of the image's longer side, at least 15 px "
+                             "(the engine's default)")
         self.spin = QDoubleSpinBox()
         self.spin.setRange(1.0, 500.0)
         self.spin.setDecimals(1)
@@ -532,12 +709,27 @@ class MaxBlurControl(QWidget):
         self.spin.setSuffix(" px")
         self.spin.setValue(15.0)
         self.spin.setEnabled(False)
-        self.spin.setToolTip("Side of the largest local PSF's bounding box, in image pixels")
-        self.auto.toggled.connect(lambda on: self.spin.setEnabled(not on))
+        self.spin.setToolTip("The longest blur streak to look for, in image pixels (the "
+                             "side of the largest local PSF's bounding box); larger is "
+                             "slower and sees more clutter")
+        self.auto.toggled.connect(self._on_auto)
         layout = QHBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.spin, 1)
         layout.addWidget(self.auto)
+        if image_combo is not None:
+            image_combo.changed.connect(lambda _value: self.refresh())
+            self.refresh()
+
+    def _on_auto(self, on: bool) -> None:
+        self.spin.setEnabled(not on)
+        self.refresh()
+
+    def refresh(self) -> None:
+        """While on auto, show the value auto resolves to for the chosen image."""
+        layer = None if self._combo is None else self._combo.value
+        if layer is not None:
+            self.show_default_for(image_shape(layer))
 
     def show_default_for(self, shape) -> None:
         """While on auto, display the value auto resolves to for an image of ``shape``."""
@@ -549,6 +741,91 @@ class MaxBlurControl(QWidget):
         if self.auto.isChecked():
             return default_max_blur(shape)
         return float(self.spin.value())
+
+
+# ---------------------------------------------------------------------------------------
+# docking
+# ---------------------------------------------------------------------------------------
+
+#: Qt property marking the plugin's dock widgets (they join one tab group).
+_DOCK_PROPERTY = "edgecme_dock"
+
+
+def dock_layout(widget: QWidget, content: QLayout) -> QScrollArea:
+    """Lay out a dock widget: ``content`` in a vertical scroll area, docked as tabs.
+
+    The scroll area lets the dock be shorter than its content (napari stacks docks
+    and the window must fit a 1080 px screen); the widget then joins the other
+    docks of this plugin already in the same dock area as one tab group (see
+    :class:`_TabJoiner`). Each dock still opens on its own from the Plugins menu.
+
+    Returns
+    -------
+    QScrollArea
+        Holding ``content``.
+    """
+    inner = QWidget()
+    inner.setLayout(content)
+    area = QScrollArea()
+    area.setWidgetResizable(True)
+    area.setFrameShape(QFrame.Shape.NoFrame)
+    area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+    area.setWidget(inner)
+    bar = area.verticalScrollBar().sizeHint().width()
+    area.setMinimumWidth(inner.minimumSizeHint().width() + bar)
+    outer = QVBoxLayout(widget)
+    outer.setContentsMargins(0, 0, 0, 0)
+    outer.addWidget(area)
+    widget.setProperty(_DOCK_PROPERTY, True)
+    widget.installEventFilter(_TabJoiner(widget))
+    return area
+
+
+class _TabJoiner(QObject):
+    """When its widget is first shown docked, tabify its dock with the plugin's others."""
+
+    def __init__(self, widget: QWidget):
+        super().__init__(widget)
+        self._widget = widget
+        self._done = False
+
+    def eventFilter(self, obj, event) -> bool:
+        if not self._done and event.type() == QEvent.Type.Show:
+            self._done = True
+            QTimer.singleShot(0, self._join)  # after napari has placed the dock
+        return False
+
+    def _join(self) -> None:
+        if not _is_alive(self._widget):
+            return
+        dock = _ancestor(self._widget, QDockWidget)
+        main = None if dock is None else dock.parentWidget()
+        if dock is None or not isinstance(main, QMainWindow) or dock.isFloating():
+            return
+        area = main.dockWidgetArea(dock)
+        others = [other for other in main.findChildren(QDockWidget)
+                  if other is not dock and not other.isFloating() and other.isVisible()
+                  and main.dockWidgetArea(other) == area and _holds_plugin_dock(other)]
+        if not others or any(o in main.tabifiedDockWidgets(dock) for o in others):
+            return
+        main.tabifyDockWidget(others[0], dock)
+        dock.show()
+        dock.raise_()
+
+
+def _ancestor(widget: QWidget, cls):
+    parent = widget.parentWidget()
+    while parent is not None and not isinstance(parent, cls):
+        parent = parent.parentWidget()
+    return parent
+
+
+def _holds_plugin_dock(dock: QDockWidget) -> bool:
+    inner = dock.widget()
+    if inner is None:
+        return False
+    return bool(inner.property(_DOCK_PROPERTY)) or any(
+        bool(child.property(_DOCK_PROPERTY)) for child in inner.findChildren(QWidget))
 
 
 def plot_canvas(viewer, n_axes: int, height: float = 2.6, left_margin: int = 48,

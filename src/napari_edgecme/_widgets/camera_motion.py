@@ -5,8 +5,9 @@ Xu+Ep, paper Eqs. 19-22) in a worker thread, with a progress bar per scale and
 iteration and, for Xu and Xu+Ep, a live preview layer of the latent image as it
 refines. Results, aligned with the input image (same scale and translate):
 
-* ``"<image> PSF field"``: the local PSFs on a grid, drawn over the image (additive
-  blending), carrying the motion in ``metadata["edgecme_motion"]`` as the JSON dict
+* ``"<image> PSF field"``: the local PSFs on a grid, each enlarged by one stated
+  factor on a gray tile at its sample point (:func:`._psf_view.psf_glyphs`), over
+  the image, carrying the motion in ``metadata["edgecme_motion"]`` as the JSON dict
   of the motion file, so it survives saving and feeds the "Deconvolution" widget;
 * ``"<image> latent"`` (Xu, Xu+Ep; hidden): the last latent estimate;
 * a plot of the motion density function in pose space (marker size = weight);
@@ -38,7 +39,7 @@ from qtpy.QtWidgets import (
 )
 from superqt import QCollapsible
 
-from ..core.camera import param_names
+from ..core.camera import DEFAULT_FOCAL_35MM, param_names
 from ..core.edges import EdgeProfiles
 from ..core.estimate import DEFAULTS, MotionEstimate, iter_estimate_motion
 from ..core.motion import CameraMotion
@@ -47,10 +48,11 @@ from ._common import (
     MOTION_KEY,
     PROFILES_KEY,
     SOURCE_KEY,
-    EngineRunner,
     MaxBlurControl,
+    RunControls,
     default_focal_px,
     deferred_draw,
+    dock_layout,
     first_line,
     focal_from_layer,
     image_layers,
@@ -58,21 +60,26 @@ from ._common import (
     plot_canvas,
     resampled_kwargs,
     snapshot_image,
-    spatial_kwargs,
     style_axes,
     theme_colours,
 )
+from ._psf_view import psf_glyphs
 
 __all__ = ["METHOD_CHOICES", "MODEL_CHOICES", "CameraMotionWidget", "psf_grid"]
 
 logger = logging.getLogger(__name__)
 
 #: Estimation methods as shown, with the engine's names.
-METHOD_CHOICES = [("Xu+Ep", "xu+ep"), ("Xu", "xu"), ("EpAlone", "ep")]
+METHOD_CHOICES = [("sharpened image + edge profiles (Xu+Ep)", "xu+ep"),
+                  ("sharpened image only (Xu)", "xu"), ("edge profiles only (EpAlone)", "ep")]
 #: Pose models as shown, with the engine's names.
-MODEL_CHOICES = [("rotation (3-D camera rotation)", "rotation"),
-                 ("in-plane (tx, ty, θz)", "inplane"),
-                 ("translation (uniform blur)", "translation")]
+MODEL_CHOICES = [("camera turned in 3-D (rotation)", "rotation"),
+                 ("slid and turned in the image plane (tx, ty, θz)", "inplane"),
+                 ("slid only: same blur everywhere (translation)", "translation")]
+#: Metadata key of the PSF field's enlargement (each PSF drawn this many times larger).
+ZOOM_KEY = "edgecme_psf_enlargement"
+#: Opacity of the live preview of the latent image over the photo.
+PREVIEW_OPACITY = 0.6
 _AUTO_PROFILES = ("detect automatically", None)
 #: Metadata key of a summary of the estimation run (method, parameters, timing).
 ESTIMATE_KEY = "edgecme_estimate"
@@ -105,63 +112,95 @@ class CameraMotionWidget(QWidget):
         self._last_name = ""
 
         self.image_combo = ComboBox(label="image", choices=self._image_choices)
+        self.image_combo.native.setToolTip("The blurred photo (2-D gray or RGB layer)")
         self.method_combo = ComboBox(label="method", choices=METHOD_CHOICES, value="xu+ep")
         self.method_combo.native.setToolTip(
-            "Xu+Ep: L0 latent image plus edge profiles (Eq. 22); Xu: L0 latent image alone "
-            "(the baseline); EpAlone: edge profiles alone, no latent image (Eq. 19)")
+            "How to find the motion. Sharpened image + edge profiles: alternates a "
+            "sharpened estimate of the photo with a fit of the blur to straight edges "
+            "(Xu+Ep, paper Eq. 22), best in general. Sharpened image only: the baseline "
+            "(Xu, L0 latent image, Eq. 21). Edge profiles only: fastest, needs at least "
+            "12 clean straight edges (EpAlone, Eq. 19)")
         self.model_combo = ComboBox(label="model", choices=MODEL_CHOICES, value="rotation")
-        self.max_blur = MaxBlurControl()
+        self.model_combo.native.setToolTip(
+            "How the camera may have moved. Turned in 3-D: hand shake, the blur differs "
+            "over the photo (3 rotation angles). In the image plane: sliding sideways and "
+            "turning about the lens axis. Slid only: one blur for the whole photo")
+        self.max_blur = MaxBlurControl(self.image_combo)
         self.focal_auto = QCheckBox("auto")
         self.focal_auto.setChecked(True)
+        self.focal_auto.setToolTip("Auto: from the layer's metadata or the file's EXIF, "
+                                   f"else a {DEFAULT_FOCAL_35MM:g} mm-equivalent lens")
         self.focal_spin = QDoubleSpinBox()
         self.focal_spin.setRange(1.0, 1e6)
         self.focal_spin.setDecimals(1)
         self.focal_spin.setSuffix(" px")
         self.focal_spin.setEnabled(False)
+        self.focal_spin.setToolTip(
+            "Focal length in pixels of this image (35 mm-equivalent focal length / 36 × "
+            "the longer side). Used by the 3-D rotation model: how far a turn of the "
+            "camera moves each pixel")
         self.focal_hint = QLabel("")
         self.focal_hint.setWordWrap(True)
         self.profiles_combo = ComboBox(label="profiles", choices=self._profile_choices)
         self.profiles_combo.native.setToolTip(
-            "Edge profiles for EpAlone and Xu+Ep: detected automatically, or the set shown "
-            "in a layer of the 'Edge profiles' widget (with your hand picks)")
-        self.preview_check = QCheckBox("live preview of the latent image")
+            "Edge profiles for the methods that use them: detected automatically, or the "
+            "set shown in a layer of the 'Edge profiles' widget (with your hand picks)")
+        self.preview_check = QCheckBox("live preview of the sharpened image")
         self.preview_check.setChecked(True)
+        self.preview_check.setToolTip(
+            "While estimating, show the sharpened image (the latent image) as it refines, "
+            "semi-transparent above the photo; it stays as the hidden '<image> latent' "
+            "layer at the end")
 
         # advanced parameters (paper Eqs. 19-22), engine defaults
         self.lambda_w = _float_spin(DEFAULTS["lambda_w"], 0.0, 1.0, 5,
-                                    "L1 weight on the motion density (Eqs. 19, 22)")
+                                    "Higher: fewer camera poses, a thinner blur path (L1 "
+                                    "weight λ_w on the motion density function, Eqs. 19, 22)")
         self.lambda_ip = _float_spin(DEFAULTS["lambda_ip"], 0.0, 100.0, 3,
-                                     "weight of the edge-profile term in Xu+Ep (Eq. 22)")
+                                     "How much the edge profiles count against the "
+                                     "sharpened image (λ_Ip, Eq. 22)")
         self.lambda_f = _float_spin(DEFAULTS["lambda_f"], 1e-5, 1.0, 5,
-                                    "L0 weight of the latent update (Eq. 21)")
-        self.n_iter = _int_spin(DEFAULTS["n_iter"], 1, 100, "alternations per scale")
+                                    "Higher: a flatter, more cartoon-like sharpened image "
+                                    "(L0 weight λ_f of the latent update, Eq. 21)")
+        self.n_iter = _int_spin(DEFAULTS["n_iter"], 1, 100,
+                                "Rounds of sharpen-then-fit at each scale of the pyramid")
         self.max_side = _int_spin(DEFAULTS["max_side"], 32, 16384,
-                                  "estimate on a copy whose longer side is at most this (px)")
-        self.seed = _int_spin(0, 0, 2**31 - 1, "seed of every random choice")
+                                  "Estimate on a copy whose longer side is at most this (px); "
+                                  "larger is slower")
+        self.seed = _int_spin(0, 0, 2**31 - 1, "Seed of every random choice (same seed, "
+                                                "same result)")
         advanced = QCollapsible("Advanced")
         adv = QWidget()
         adv_form = QFormLayout(adv)
-        adv_form.addRow("λ_w (MDF sparsity)", self.lambda_w)
-        adv_form.addRow("λ_Ip (edge profiles)", self.lambda_ip)
-        adv_form.addRow("λ_f (L0 latent)", self.lambda_f)
-        adv_form.addRow("iterations per scale", self.n_iter)
+        adv_form.addRow("motion sparsity (λ_w)", self.lambda_w)
+        adv_form.addRow("edge-profile weight (λ_Ip)", self.lambda_ip)
+        adv_form.addRow("image flatness (λ_f)", self.lambda_f)
+        adv_form.addRow("rounds per scale", self.n_iter)
         adv_form.addRow("max working side", self.max_side)
         adv_form.addRow("seed", self.seed)
         advanced.addWidget(adv)
         self.advanced = advanced
 
-        self.run_button = QPushButton("Run")
-        self.cancel_button = QPushButton("Cancel")
+        self.controls = RunControls(
+            self, "Camera motion",
+            run_tip="Estimate how the camera moved, in the background; adds the PSF field "
+                    "layer (and the sharpened image) and plots the motion",
+            cancel_tip="Stop the estimation now; nothing is added")
+        self.run_button = self.controls.run_button
+        self.cancel_button = self.controls.cancel_button
+        self.status = self.controls.status
+        self.runner = self.controls.runner
         self.save_button = QPushButton("Save motion…")
         self.save_button.setToolTip("Write the estimated motion as a JSON motion file")
         self.save_button.setEnabled(False)
-        self.status = QLabel("")
-        self.status.setWordWrap(True)
-        self.canvas, axes = plot_canvas(viewer, 1, height=2.8, left_margin=60,
+        self.canvas, axes = plot_canvas(viewer, 1, height=2.4, left_margin=60,
                                         right_margin=16)
         self._has_plot = bool(axes)
         self._redraw = deferred_draw(self.canvas) if axes else (lambda: None)
         self._colours = theme_colours(viewer)
+        self.plot_section = QCollapsible("Plot: camera poses")
+        self.plot_section.addWidget(self.canvas)
+        self.plot_section.expand(animate=False)
 
         focal_row = QHBoxLayout()
         focal_row.addWidget(self.focal_spin, 1)
@@ -175,19 +214,15 @@ class CameraMotionWidget(QWidget):
         form.addRow("", self.focal_hint)
         form.addRow("profiles", self.profiles_combo.native)
         form.addRow("", self.preview_check)
-        run_row = QHBoxLayout()
-        run_row.addWidget(self.run_button)
-        run_row.addWidget(self.cancel_button)
-        layout = QVBoxLayout(self)
+        layout = QVBoxLayout()
         layout.addLayout(form)
         layout.addWidget(advanced)
-        layout.addLayout(run_row)
-        layout.addWidget(self.status)
-        layout.addWidget(self.canvas, 1)
+        layout.addWidget(self.controls)
+        layout.addWidget(self.plot_section)
         layout.addWidget(self.save_button)
+        layout.addStretch(1)
+        dock_layout(self, layout)
 
-        self.runner = EngineRunner(self, "Camera motion", self.run_button, self.cancel_button,
-                                   self.status)
         self.run_button.clicked.connect(self.run)
         self.save_button.clicked.connect(lambda: self.save_motion())
         self.image_combo.changed.connect(self._on_image_changed)
@@ -210,14 +245,15 @@ class CameraMotionWidget(QWidget):
         """Refresh the layer choices (napari calls this when layers change)."""
         self.image_combo.reset_choices()
         self.profiles_combo.reset_choices()
-        self._on_image_changed(self.image_combo.value)
+        self._on_image_changed(self.image_combo.value, keep_status=True)
 
-    def _on_image_changed(self, layer) -> None:
+    def _on_image_changed(self, layer, keep_status: bool = False) -> None:
+        if not keep_status:  # the status line described the previous image's run
+            self.runner.clear_status()
         if layer is None:
             self.focal_hint.setText("")
             return
-        shape = image_shape(layer)
-        self.max_blur.show_default_for(shape)
+        self.max_blur.refresh()
         self._update_focal_hint()
         # offer the image's own (hand-edited) profiles once; a later choice of the user sticks
         own = next((shapes for _name, shapes in self._profile_choices()[1:]
@@ -253,14 +289,14 @@ class CameraMotionWidget(QWidget):
         """Estimate the camera motion of the chosen image in a worker thread."""
         image = self.image_combo.value
         if image is None:
-            show_error("Camera motion: choose an image layer first")
+            self.runner.refuse("choose an image layer first")
             return
         method, model = self.method_combo.value, self.model_combo.value
         try:
             data = snapshot_image(image)
             profiles = self._chosen_profiles(data.shape) if method != "xu" else None
         except ValueError as err:
-            show_error(f"Camera motion: {first_line(err)}")
+            self.runner.refuse(first_line(err))
             return
         if self.focal_auto.isChecked():
             focal_px = focal_from_layer(image)[0]
@@ -274,7 +310,7 @@ class CameraMotionWidget(QWidget):
             lambda_f=self.lambda_f.value(), n_iter=self.n_iter.value(),
             max_side=self.max_side.value(), preview=preview, rng=self.seed.value())
         self.runner.start(gen, on_result=partial(self._show_result, image),
-                          on_record=partial(self._show_preview, image), on_end=self._end)
+                          on_preview=partial(self._show_preview, image), on_end=self._end)
 
     def cancel(self) -> None:
         """Stop the running estimation (nothing is added)."""
@@ -305,12 +341,24 @@ class CameraMotionWidget(QWidget):
         if self._preview is None or self._preview not in self._viewer.layers:
             self._preview = Image(latent, name=f"{image.name} latent (preview)",
                                   colormap="gray", contrast_limits=(0.0, 1.0),
+                                  opacity=PREVIEW_OPACITY, blending="translucent",
                                   metadata={SOURCE_KEY: image.name}, **where)
-            self._viewer.add_layer(self._preview)
+            self._insert_above(image, self._preview)
         else:
             self._preview.data = latent
             self._preview.scale = where["scale"]
             self._preview.translate = where["translate"]
+
+    def _insert_above(self, image: Image, layer: Image) -> None:
+        """Add ``layer`` just above ``image``, leaving the user's layer selection alone."""
+        layers = self._viewer.layers
+        selected, active = set(layers.selection), layers.selection.active
+        index = layers.index(image) + 1 if image in layers else len(layers)
+        layers.insert(index, layer)
+        layers.selection.clear()
+        layers.selection.update(selected)
+        if active is not None and active in layers:
+            layers.selection.active = active
 
     def _show_result(self, image: Image, estimate: MotionEstimate) -> str:
         motion, info = estimate.motion, estimate.info
@@ -319,10 +367,12 @@ class CameraMotionWidget(QWidget):
                    "seconds": round(info.seconds, 3), "converged": info.converged,
                    "message": info.message}
         meta = {MOTION_KEY: motion.to_dict(), SOURCE_KEY: image.name, ESTIMATE_KEY: summary}
-        field = motion.psf_field(grid=psf_grid(motion.image_shape))
+        glyphs = psf_glyphs(motion, psf_grid(motion.image_shape))
         self._viewer.add_layer(Image(
-            field, name=f"{image.name} PSF field", colormap="inferno", blending="additive",
-            contrast_limits=(0.0, 1.0), metadata=dict(meta), **spatial_kwargs(image)))
+            glyphs.rgba, name=f"{image.name} PSF field", rgb=True, blending="translucent",
+            contrast_limits=(0.0, 1.0),
+            metadata={**meta, ZOOM_KEY: glyphs.enlargement},
+            **resampled_kwargs(image, glyphs.rgba.shape[:2])))
         if estimate.latent is not None:
             latent_name = f"{image.name} latent"
             where = resampled_kwargs(image, estimate.latent.shape)
@@ -331,6 +381,7 @@ class CameraMotionWidget(QWidget):
                 layer.data = estimate.latent
                 layer.scale, layer.translate = where["scale"], where["translate"]
                 layer.name = latent_name
+                layer.opacity = 1.0
                 layer.metadata.update(meta)
             else:
                 layer = Image(estimate.latent, name=latent_name, colormap="gray",
@@ -345,7 +396,8 @@ class CameraMotionWidget(QWidget):
             return (f"no blur found ({info.seconds:.1f} s): the motion is the identity. If the "
                     "photo is blurred, try a larger max blur or another model")
         text = (f"{motion.n_poses} poses, blur up to {motion.blur_extent():.1f} px "
-                f"({info.seconds:.1f} s)")
+                f"({info.seconds:.1f} s); PSF field: each PSF drawn "
+                f"{glyphs.enlargement}x its size")
         if info.message.startswith("fell back"):
             text += f"; {info.message.split(';')[0]}"
         return text
@@ -388,7 +440,7 @@ class CameraMotionWidget(QWidget):
         ax = figure.add_subplot()
         style_axes(ax, fg, bg)
         if motion is None:
-            ax.set_title("motion in pose space (run an estimation)", fontsize=8)
+            ax.set_title("camera poses (run an estimation)", fontsize=8)
             self._redraw()
             return
         names = param_names(motion.model)
@@ -415,7 +467,7 @@ class CameraMotionWidget(QWidget):
                        edgecolors="none")
         ax.set_xlabel(labels[0], fontsize=8)
         ax.set_ylabel(labels[1], fontsize=8)
-        ax.set_title(f"motion density: {motion.n_poses} poses (area = weight)", fontsize=8)
+        ax.set_title(f"{motion.n_poses} camera poses (dot area = time spent)", fontsize=8)
         ax.relim()
         ax.autoscale_view()
         ax.set_aspect("equal", adjustable="datalim")

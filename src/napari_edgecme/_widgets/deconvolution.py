@@ -6,19 +6,28 @@ motion comes from a layer's metadata (``metadata["edgecme_motion"]``, as written
 the "Camera motion" widget or a sample with its true motion) or from a JSON motion
 file. The result is a new float32 layer ``"<image> deblurred"`` with the input's
 scale and translate; the input layer is never modified.
+
+A motion describes the image it was estimated on. The widget fits it to the chosen
+image with :func:`fit_motion`: the same image as is; a crop of it -- placed by the
+layer's translate, as napari crop tools leave it -- with
+:meth:`~napari_edgecme.core.motion.CameraMotion.cropped` (the principal point moves,
+the blur does not shrink); a resized copy with
+:meth:`~napari_edgecme.core.motion.CameraMotion.rescale`. What it did is shown under
+the motion choice before a run; a guess is a warning; anything else is refused.
 """
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
 import napari
 import numpy as np
 from magicgui.widgets import ComboBox
-from napari.layers import Image
-from napari.utils.notifications import show_error, show_info
+from napari.layers import Image, Layer
+from napari.utils.notifications import show_error, show_info, show_warning
 from qtpy.QtWidgets import (
     QDoubleSpinBox,
     QFileDialog,
@@ -37,23 +46,146 @@ from ..core.motion import CameraMotion
 from ._common import (
     MOTION_KEY,
     SOURCE_KEY,
-    EngineRunner,
+    RunControls,
+    dock_layout,
     first_line,
     image_layers,
+    image_shape,
     motion_from,
     snapshot_image,
     spatial_kwargs,
 )
 
-__all__ = ["METHOD_CHOICES", "DeconvolutionWidget"]
+__all__ = ["METHOD_CHOICES", "DeconvolutionWidget", "MotionFit", "fit_motion"]
 
 logger = logging.getLogger(__name__)
 
 #: Deconvolution methods as shown, with the engine's names.
-METHOD_CHOICES = [("Hyper-Laplacian (Krishnan-Fergus)", "hyperlaplacian"),
-                  ("Richardson-Lucy", "rl"), ("Wiener", "wiener")]
+METHOD_CHOICES = [("sparse gradients (hyper-Laplacian, Krishnan-Fergus)", "hyperlaplacian"),
+                  ("iterative (Richardson-Lucy)", "rl"), ("one-step linear (Wiener)", "wiener")]
 #: Metadata key of the deconvolution settings of a restored layer.
 DECONV_KEY = "edgecme_deconvolution"
+
+
+@dataclass(frozen=True)
+class MotionFit:
+    """A camera motion made to fit an image, and what was done to it.
+
+    Attributes
+    ----------
+    motion : CameraMotion
+        For the image's pixel grid.
+    note : str
+        One line for the user ("" when the motion is the image's own).
+    guess : bool
+        True when the fit rests on an assumption the user should check (a warning).
+    """
+
+    motion: CameraMotion
+    note: str = ""
+    guess: bool = False
+
+
+def _plain(layer: Layer) -> bool:
+    """Whether a layer's transform is scale and translate only (no rotation or shear)."""
+    return (np.allclose(layer.rotate, np.eye(len(layer.scale)))
+            and np.allclose(layer.shear, 0.0))
+
+
+def fit_motion(motion: CameraMotion, image: Image, reference: Layer | None = None) -> MotionFit:
+    """Fit ``motion`` to the pixel grid of ``image``: as is, cropped or rescaled.
+
+    Parameters
+    ----------
+    motion : CameraMotion
+        As estimated, for an image of ``motion.image_shape``.
+    image : Image
+        The layer to deconvolve.
+    reference : Layer, optional
+        The layer the motion came from (its data lies over the motion's image, as
+        the PSF field, a latent or a sample layer does); None for a motion file.
+
+    Returns
+    -------
+    MotionFit
+
+    Raises
+    ------
+    ValueError
+        One line, when the image is neither the motion's image, nor a crop of it at
+        a known place, nor a resized copy.
+
+    Notes
+    -----
+    With a reference layer, the image's pixel grid is mapped into the motion's
+    pixels through world coordinates: the same pixel size at a whole-pixel offset
+    is a crop (:meth:`CameraMotion.cropped`), an image covering the motion's frame
+    with other pixels a resized copy (:meth:`CameraMotion.rescale`). Without one
+    (a file), the layer's translate in pixels is the crop offset. A smaller image
+    at the motion image's origin is ambiguous: a resized copy if the aspect ratio
+    agrees, else a crop at (0, 0) -- both said as a warning.
+    """
+    shape = image_shape(image)
+    full = motion.image_shape
+    scale_i = np.asarray(image.scale, float)[-2:]
+    trans_i = np.asarray(image.translate, float)[-2:]
+    if reference is not None and _plain(reference) and _plain(image):
+        ref_data = np.asarray(image_shape(reference) if isinstance(reference, Image)
+                              else full, float)
+        factor = np.asarray(full, float) / ref_data
+        scale_r = np.asarray(reference.scale, float)[-2:]
+        trans_r = np.asarray(reference.translate, float)[-2:]
+        pitch = scale_i / scale_r * factor  # motion pixels per image pixel
+        offset = ((trans_i - trans_r) / scale_r + 0.5) * factor - 0.5
+    elif _plain(image):
+        pitch, offset = np.ones(2), trans_i / scale_i
+    else:
+        pitch, offset = None, None
+    size = f"{shape[0]}x{shape[1]}"
+    mine = f"{full[0]}x{full[1]}"
+    if shape == full and (offset is None or np.allclose(offset, 0, atol=1e-3)):
+        return MotionFit(motion)
+    if pitch is not None and np.allclose(pitch, 1.0, atol=1e-3):
+        whole = np.round(offset)
+        if np.allclose(offset, whole, atol=1e-3) and np.any(whole != 0):
+            r, c = (int(v) for v in whole)
+            try:
+                moved = motion.cropped((r, c), shape)
+            except ValueError:
+                raise ValueError(
+                    f"this {size} image at (row {r}, col {c}) reaches outside the motion's "
+                    f"{mine} image") from None
+            return MotionFit(moved, f"a {size} crop at (row {r}, col {c}) of the motion's "
+                                    f"{mine} image: motion moved with the crop (not rescaled)")
+        inside = shape[0] <= full[0] and shape[1] <= full[1]
+        if np.all(whole == 0) and shape != full and inside:
+            return _at_origin(motion, shape)
+    if pitch is not None and shape != full:
+        covered = np.asarray(shape) * pitch
+        if (np.allclose(covered, full, atol=1.0)
+                and np.allclose(offset, 0.5 * pitch - 0.5, atol=0.5 * pitch.max())):
+            return MotionFit(motion.rescale(shape), f"a resized copy of the motion's {mine} "
+                                                    "image: motion rescaled")
+    if shape == full:
+        return MotionFit(motion, f"placed apart from the motion's image; taken as the same "
+                                 f"{mine} image", guess=True)
+    raise ValueError(
+        f"the motion is for a {mine} image; this image is {size} and neither a crop at a "
+        "known place (give the layer the crop's offset as translate) nor a resized copy")
+
+
+def _at_origin(motion: CameraMotion, shape) -> MotionFit:
+    """A smaller image at the origin of the motion's image: a resized copy or a crop?"""
+    full = motion.image_shape
+    size, mine = f"{shape[0]}x{shape[1]}", f"{full[0]}x{full[1]}"
+    ratio = np.asarray(shape, float) / np.asarray(full, float)
+    if abs(ratio[0] - ratio[1]) <= 1.0 / min(full) + 1.0 / min(shape):
+        return MotionFit(motion.rescale(shape), f"{size} is taken as a resized copy of the "
+                         f"motion's {mine} image (motion rescaled); if it is a crop, give the "
+                         "layer the crop's offset as translate", guess=True)
+    return MotionFit(motion.cropped((0, 0), shape), f"{size} is taken as a crop at the top-left "
+                     f"corner of the motion's {mine} image; if it was cut elsewhere, give the "
+                     "layer the crop's offset as translate", guess=True)
 
 
 class DeconvolutionWidget(QWidget):
@@ -72,29 +204,44 @@ class DeconvolutionWidget(QWidget):
         self.last_layer: Image | None = None
 
         self.image_combo = ComboBox(label="image", choices=self._image_choices)
+        self.image_combo.native.setToolTip("The blurred image layer to restore (2-D gray or "
+                                           "RGB); it is not modified")
         self.motion_combo = ComboBox(label="motion", choices=self._motion_choices)
         self.motion_combo.native.setToolTip(
-            "A layer carrying a camera motion (e.g. the PSF field of 'Camera motion', or a "
-            "sample with its true motion), or a motion file loaded with 'Load JSON…'")
+            "How the camera moved: a layer carrying a camera motion (the PSF field of "
+            "'Camera motion', or a sample with its true motion), or a motion file loaded "
+            "with 'Load JSON…'")
+        self.motion_hint = QLabel("")
+        self.motion_hint.setWordWrap(True)
         self.load_button = QPushButton("Load JSON…")
         self.load_button.setToolTip("Read a motion file (edgecme-motion JSON)")
         self.method_combo = ComboBox(label="method", choices=METHOD_CHOICES,
                                      value="hyperlaplacian")
+        self.method_combo.native.setToolTip(
+            "Sparse gradients: sharpest, fewest ringing artefacts (the default); "
+            "Richardson-Lucy: iterative, sharper with more iterations but noisier; "
+            "Wiener: one linear step, fastest, softest")
 
         hl = DEFAULTS["hyperlaplacian"]
-        self.lam = QDoubleSpinBox()
-        self.lam.setRange(1.0, 1e7)
-        self.lam.setDecimals(0)
-        self.lam.setStepType(QDoubleSpinBox.StepType.AdaptiveDecimalStepType)
-        self.lam.setValue(hl["lam"])
-        self.lam.setToolTip("data weight λ for images in [0, 1]: raise it for clean photos, "
-                            "lower it for noisy ones")
+        self.lambda_f = QDoubleSpinBox()
+        self.lambda_f.setRange(1e-6, 1.0)
+        self.lambda_f.setDecimals(7)
+        self.lambda_f.setStepType(QDoubleSpinBox.StepType.AdaptiveDecimalStepType)
+        self.lambda_f.setValue(hl["lambda_f"])
+        self.lambda_f.setToolTip("How smooth the result is (weight λ_f of the gradient prior, "
+                                 "as in the estimation, images in [0, 1]): lower it for "
+                                 "clean photos, raise it for noisy ones")
         self.alpha_combo = ComboBox(choices=[("2/3", 2.0 / 3.0), ("1/2", 0.5)],
                                     value=hl["alpha"])
-        self.alpha_combo.native.setToolTip("exponent of the hyper-Laplacian prior")
+        self.alpha_combo.native.setToolTip("How strongly small gradients are flattened "
+                                           "(exponent α of the hyper-Laplacian prior): 1/2 "
+                                           "flattens more")
         self.solver_combo = ComboBox(choices=[("patch-wise Fourier (fast)", "fourier"),
                                               ("conjugate gradients (exact)", "cg")],
                                      value=hl["solver"])
+        self.solver_combo.native.setToolTip("Fourier on overlapping tiles (fast, the "
+                                            "default) or conjugate gradients with the exact "
+                                            "spatially varying blur (slow)")
         self.rl_iterations = QSpinBox()
         self.rl_iterations.setRange(1, 100000)
         self.rl_iterations.setValue(DEFAULTS["rl"]["iterations"])
@@ -104,10 +251,11 @@ class DeconvolutionWidget(QWidget):
         self.nsr.setDecimals(6)
         self.nsr.setStepType(QDoubleSpinBox.StepType.AdaptiveDecimalStepType)
         self.nsr.setValue(DEFAULTS["wiener"]["nsr"])
-        self.nsr.setToolTip("noise-to-signal ratio")
+        self.nsr.setToolTip("Noise-to-signal ratio: raise it for noisy photos (smoother)")
 
         self.params = QStackedWidget()
-        for rows in ([("λ", self.lam), ("α", self.alpha_combo.native),
+        for rows in ([("smoothness (λ_f)", self.lambda_f), ("prior exponent (α)",
+                                                      self.alpha_combo.native),
                       ("solver", self.solver_combo.native)],
                      [("iterations", self.rl_iterations)],
                      [("noise/signal", self.nsr)]):
@@ -118,10 +266,14 @@ class DeconvolutionWidget(QWidget):
                 page_form.addRow(label, widget)
             self.params.addWidget(page)
 
-        self.run_button = QPushButton("Run")
-        self.cancel_button = QPushButton("Cancel")
-        self.status = QLabel("")
-        self.status.setWordWrap(True)
+        self.controls = RunControls(
+            self, "Deconvolution",
+            run_tip="Deblur the image with the motion in the background; adds "
+                    "'<image> deblurred'")
+        self.run_button = self.controls.run_button
+        self.cancel_button = self.controls.cancel_button
+        self.status = self.controls.status
+        self.runner = self.controls.runner
 
         motion_row = QHBoxLayout()
         motion_row.addWidget(self.motion_combo.native, 1)
@@ -129,23 +281,20 @@ class DeconvolutionWidget(QWidget):
         form = QFormLayout()
         form.addRow("image", self.image_combo.native)
         form.addRow("motion", motion_row)
+        form.addRow("", self.motion_hint)
         form.addRow("method", self.method_combo.native)
-        run_row = QHBoxLayout()
-        run_row.addWidget(self.run_button)
-        run_row.addWidget(self.cancel_button)
-        layout = QVBoxLayout(self)
+        layout = QVBoxLayout()
         layout.addLayout(form)
         layout.addWidget(self.params)
-        layout.addLayout(run_row)
-        layout.addWidget(self.status)
+        layout.addWidget(self.controls)
         layout.addStretch(1)
+        dock_layout(self, layout)
 
-        self.runner = EngineRunner(self, "Deconvolution", self.run_button, self.cancel_button,
-                                   self.status)
         self.run_button.clicked.connect(self.run)
         self.load_button.clicked.connect(lambda: self.load_motion())
         self.method_combo.changed.connect(self._on_method_changed)
-        self.image_combo.changed.connect(lambda _value: self.motion_combo.reset_choices())
+        self.image_combo.changed.connect(self._on_image_changed)
+        self.motion_combo.changed.connect(lambda _value: self._update_motion_hint())
         self.reset_choices()
         self._on_method_changed(self.method_combo.value)
 
@@ -171,6 +320,50 @@ class DeconvolutionWidget(QWidget):
         """Refresh the layer choices (napari calls this when layers change)."""
         self.image_combo.reset_choices()
         self.motion_combo.reset_choices()
+        self._update_motion_hint()
+
+    def _on_image_changed(self, _value) -> None:
+        self.motion_combo.reset_choices()
+        self.runner.clear_status()
+        self._update_motion_hint()
+
+    def fitted_motion(self) -> MotionFit:
+        """The chosen motion fitted to the chosen image (:func:`fit_motion`).
+
+        Raises
+        ------
+        ValueError
+            One line: no image, no motion, or a motion that does not fit.
+        """
+        image = self.image_combo.value
+        if image is None:
+            raise ValueError("choose an image layer first")
+        source = self.motion_combo.value
+        if source is None:
+            raise ValueError("choose a motion: a layer that carries one (run 'Camera "
+                             "motion' first) or a JSON file ('Load JSON…')")
+        motion = motion_from(source)
+        return fit_motion(motion, image, source if isinstance(source, Layer) else None)
+
+    def _update_motion_hint(self) -> None:
+        """Say which motion will be used and how it fits the image, or why none can be."""
+        if self.image_combo.value is None:
+            self.motion_hint.setText("")
+            return
+        if self.motion_combo.value is None:
+            self.motion_hint.setText("No motion yet: estimate one with 'Camera motion', "
+                                     "or load a motion file with 'Load JSON…'.")
+            return
+        try:
+            fit = self.fitted_motion()
+        except ValueError as err:
+            self.motion_hint.setText(f"Does not fit: {first_line(err)}")
+            return
+        m = fit.motion
+        text = f"{m.model} motion, {m.n_poses} poses, blur up to {m.blur_extent():.1f} px"
+        if fit.note:
+            text += f"; {'check: ' if fit.guess else ''}{fit.note}"
+        self.motion_hint.setText(text)
 
     def _on_method_changed(self, method) -> None:
         self.params.setCurrentIndex([value for _name, value in METHOD_CHOICES].index(method))
@@ -200,7 +393,8 @@ class DeconvolutionWidget(QWidget):
         """The chosen method's parameters, as :func:`iter_deconvolve` takes them."""
         method = self.method_combo.value
         if method == "hyperlaplacian":
-            return {"lam": float(self.lam.value()), "alpha": float(self.alpha_combo.value),
+            return {"lambda_f": float(self.lambda_f.value()),
+                    "alpha": float(self.alpha_combo.value),
                     "solver": self.solver_combo.value}
         if method == "rl":
             return {"iterations": int(self.rl_iterations.value())}
@@ -209,23 +403,17 @@ class DeconvolutionWidget(QWidget):
     def run(self) -> None:
         """Deconvolve the chosen image with the chosen motion in a worker thread."""
         image = self.image_combo.value
-        if image is None:
-            show_error("Deconvolution: choose an image layer first")
-            return
-        source = self.motion_combo.value
-        if source is None:
-            show_error("Deconvolution: choose a motion: a layer that carries one "
-                       "(run 'Camera motion' first) or a JSON file ('Load JSON…')")
-            return
         try:
+            fit = self.fitted_motion()
             data = snapshot_image(image)
-            motion = motion_from(source)
         except ValueError as err:
-            show_error(f"Deconvolution: {first_line(err)}")
+            self.runner.refuse(first_line(err))
             return
+        if fit.guess:
+            show_warning(f"Deconvolution: {fit.note}")
         method, params = self.method_combo.value, self.parameters()
-        gen = iter_deconvolve(data, motion, method, **params)
-        self.runner.start(gen, on_result=partial(self._show_result, image, motion, method,
+        gen = iter_deconvolve(data, fit.motion, method, **params)
+        self.runner.start(gen, on_result=partial(self._show_result, image, fit.motion, method,
                                                  params))
 
     def cancel(self) -> None:

@@ -43,6 +43,7 @@ from qtpy.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
+from superqt import QCollapsible
 
 from ..core.edges import EdgeProfiles, extract_edge_profiles, profile_along_line
 from ..core.progress import Progress
@@ -50,9 +51,10 @@ from ._common import (
     PROFILES_KEY,
     SOURCE_KEY,
     Connections,
-    EngineRunner,
     MaxBlurControl,
+    RunControls,
     deferred_draw,
+    dock_layout,
     first_line,
     image_layers,
     image_shape,
@@ -140,18 +142,21 @@ class EdgeProfilesWidget(QWidget):
 
         self.image_combo = ComboBox(label="image", choices=self._image_choices)
         self.image_combo.native.setToolTip("2-D gray or RGB image layer to take profiles from")
-        self.max_blur = MaxBlurControl()
-        self.detect_button = QPushButton("Detect")
-        self.detect_button.setToolTip("Find, validate and centroid-align edge profiles "
-                                      "(runs in the background)")
-        self.cancel_button = QPushButton("Cancel")
+        self.max_blur = MaxBlurControl(self.image_combo)
+        self.controls = RunControls(
+            self, "Edge profiles", run_text="Detect",
+            run_tip="Find straight edges and measure how each is blurred across (edge "
+                    "profiles); runs in the background",
+            cancel_tip="Stop the detection; nothing changes")
+        self.detect_button = self.controls.run_button
+        self.cancel_button = self.controls.cancel_button
+        self.status = self.controls.status
+        self.runner = self.controls.runner
         self.pick_button = QPushButton("Pick by hand")
         self.pick_button.setToolTip("Draw lines across straight edges, with flat ground on "
                                     "both sides; delete lines to drop profiles")
         self.export_button = QPushButton("Export JSON…")
         self.export_button.setToolTip("Save the profile set shown below as a JSON file")
-        self.status = QLabel("")
-        self.status.setWordWrap(True)
         self.count_label = QLabel("no profiles")
         self.count_label.setWordWrap(True)
         self.count_label.setToolTip(
@@ -162,29 +167,32 @@ class EdgeProfilesWidget(QWidget):
             "image (3x3) the profiles are.")
         self.plot_caption = QLabel("")
         self.plot_caption.setWordWrap(True)
-        self.canvas, self._axes = plot_canvas(viewer, 2)
+        self.canvas, self._axes = plot_canvas(viewer, 2, height=2.2)
         self._redraw = deferred_draw(self.canvas) if self._axes else (lambda: None)
+        self.plot_section = QCollapsible("Plot: profiles and their slopes")
+        plots = QWidget()
+        plots_layout = QVBoxLayout(plots)
+        plots_layout.setContentsMargins(0, 0, 0, 0)
+        plots_layout.addWidget(self.plot_caption)
+        plots_layout.addWidget(self.canvas)
+        self.plot_section.addWidget(plots)
+        self.plot_section.expand(animate=False)
 
         form = QFormLayout()
         form.addRow("image", self.image_combo.native)
         form.addRow("max blur", self.max_blur)
-        run_row = QHBoxLayout()
-        run_row.addWidget(self.detect_button)
-        run_row.addWidget(self.cancel_button)
         edit_row = QHBoxLayout()
         edit_row.addWidget(self.pick_button)
         edit_row.addWidget(self.export_button)
-        layout = QVBoxLayout(self)
+        layout = QVBoxLayout()
         layout.addLayout(form)
-        layout.addLayout(run_row)
-        layout.addWidget(self.status)
+        layout.addWidget(self.controls)
         layout.addWidget(self.count_label)
-        layout.addWidget(self.plot_caption)
-        layout.addWidget(self.canvas, 1)
         layout.addLayout(edit_row)
+        layout.addWidget(self.plot_section)
+        layout.addStretch(1)
+        dock_layout(self, layout)
 
-        self.runner = EngineRunner(self, "Edge profiles", self.detect_button, self.cancel_button,
-                                   self.status)
         self.detect_button.clicked.connect(self.detect)
         self.pick_button.clicked.connect(self.pick_by_hand)
         self.export_button.clicked.connect(lambda: self.export())
@@ -201,17 +209,24 @@ class EdgeProfilesWidget(QWidget):
         """Refresh the layer choices (napari calls this when layers change)."""
         self.image_combo.reset_choices()
         self._sync_attached()
+        self.max_blur.refresh()
+        self._follow_image(self.image_combo.value)
 
     def _on_image_changed(self, layer) -> None:
-        if layer is not None:
-            self.max_blur.show_default_for(image_shape(layer))
-            rec = self._record_for_image(layer)
-            if rec is not None:
-                self._set_current(rec)
+        self.runner.clear_status()  # it described the previous image
+        self._follow_image(layer)
+
+    def _follow_image(self, layer) -> None:
+        """Show the profile set of the chosen image (or none): never another image's."""
+        rec = None if layer is None else self._record_for_image(layer)
+        if rec is not self._current:
+            self._current = rec
+            self._refresh_view()
 
     def _on_active_layer(self, event=None) -> None:
         rec = self._record_for_shapes(self._viewer.layers.selection.active)
-        if rec is not None:
+        if rec is not None and rec.image in [layer for _name, layer in self._image_choices()]:
+            self.image_combo.value = rec.image  # shows its set via _on_image_changed
             self._set_current(rec)
 
     # -- actions ---------------------------------------------------------------------------
@@ -219,12 +234,12 @@ class EdgeProfilesWidget(QWidget):
         """Detect edge profiles in the chosen image, in a worker thread."""
         image = self.image_combo.value
         if image is None:
-            show_error("Edge profiles: choose an image layer first")
+            self.runner.refuse("choose an image layer first")
             return
         try:
             data = snapshot_image(image)
         except ValueError as err:
-            show_error(f"Edge profiles: {first_line(err)}")
+            self.runner.refuse(first_line(err))
             return
         max_blur = self.max_blur.value_for(data.shape)
         self.runner.start(iter_detect(data, max_blur),
@@ -299,7 +314,8 @@ class EdgeProfilesWidget(QWidget):
         else:
             self._render(rec, profiles, origins)
         self._set_current(rec)
-        return f"{len(detected)} edge profiles detected"
+        used = "" if detected.max_blur is None else f" (max blur {detected.max_blur:g} px)"
+        return f"{len(detected)} edge profiles detected in {image.name!r}{used}"
 
     def _create_layers(self, image: Image, profiles: EdgeProfiles, origins) -> _ProfileLayers:
         shape = image_shape(image)
@@ -481,7 +497,10 @@ class EdgeProfilesWidget(QWidget):
     def _refresh_view(self) -> None:
         rec = self._current
         if rec is None:
-            self.count_label.setText("no profiles")
+            image = self.image_combo.value
+            self.count_label.setText(
+                "no profiles" if image is None else
+                f"no profiles for {image.name!r} yet: Detect, or Pick by hand")
             self._plot(None, [])
             return
         profiles, origins = rec.profiles, rec.origins
@@ -510,8 +529,8 @@ class EdgeProfilesWidget(QWidget):
             for artist in [*ax.lines, *ax.collections]:
                 artist.remove()
         fg = ax_p.xaxis.label.get_color()
-        ax_p.set_title("profile, alpha (Eq. 1)", fontsize=8)
-        ax_d.set_title("derivative (Eq. 11)", fontsize=8)
+        ax_p.set_title("edge profile (alpha, Eq. 1)", fontsize=8)
+        ax_d.set_title("its slope: a blur slice (Eq. 11)", fontsize=8)
         ax_p.set_xlabel("offset (px)", fontsize=8)
         ax_d.set_xlabel("offset (px)", fontsize=8)
         caption = "" if profiles is None else "no profiles"
@@ -535,7 +554,7 @@ class EdgeProfilesWidget(QWidget):
                     show = show[np.linspace(0, show.size - 1, _MAX_PLOTTED).round().astype(int)]
                 style = {"colors": fg, "linewidths": 0.6, "alpha": 0.3}
                 ax_d.plot(x, np.median(profiles.derivatives, 0), color="#ff8c00", lw=2)
-                caption = (f"all {len(profiles)} profiles, median derivative in orange; "
+                caption = (f"all {len(profiles)} profiles, median slope in orange; "
                            "select lines to inspect them")
             for ax, curves in ((ax_p, profiles.profiles), (ax_d, profiles.derivatives)):
                 segments = np.stack([np.broadcast_to(x, (show.size, x.size)), curves[show]], -1)
