@@ -78,7 +78,7 @@ WORKER_MEMORY = 2 * 2**30
 ESTIMATION_PARAMS = ("lambda_w", "lambda_ip", "lambda_f", "n_iter", "max_side")
 THUMBS = "thumbs"
 _BLAS_ONE_THREAD = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                                           "MKL_NUM_THREADS")}
+                                           "MKL_NUM_THREADS", "EDGECME_FFT_THREADS")}
 _GLOB_CHARS = set("*?[")
 
 

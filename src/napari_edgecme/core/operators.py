@@ -27,6 +27,7 @@ fixed image and the pose set its weights live on,
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import scipy.fft as sfft
@@ -47,8 +48,10 @@ __all__ = [
     "psf_basis",
 ]
 
-#: Threads scipy.fft may use (-1: all cores).
-FFT_WORKERS = -1
+#: Threads scipy.fft may use (-1: all cores), from the environment variable
+#: ``EDGECME_FFT_THREADS`` when it is set when the engine is imported: a process that
+#: runs beside others of its kind (``edgecme batch``'s workers) sets it to 1.
+FFT_WORKERS = int(os.environ.get("EDGECME_FFT_THREADS", "-1") or -1)
 
 
 # --------------------------------------------------------------------------------------
