@@ -126,7 +126,8 @@ def test_thousands_of_records_never_block_the_main_thread_for_100_ms(qtbot, ui, 
     timer.stop()
     gaps = np.diff([start, *[t for t in ticks if start <= t <= end], end])
     assert ui.runner.n_records == n  # the engine's records all arrived, unchanged
-    assert ui.runner.n_updates < n / 10 and len(shown) < n / 100
+    assert ui.runner.n_updates <= 2 + (end - start) / 0.09  # at most ~10 a second
+    assert 1 <= len(shown) <= ui.runner.n_updates
     assert gaps.max() < 0.100, f"main thread blocked {1e3 * gaps.max():.0f} ms"
     assert ui.status.text() == "Demo: ok"
 

@@ -27,10 +27,11 @@ superqt's plain ``GeneratorWorker``, so this module alone decides what is shown.
 What reaches napari is throttled: the engine may yield thousands of records a
 second (one per solver iteration), and each update of napari's progress bar, of the
 status line or of a preview layer costs milliseconds on the main thread (a repaint
-of the activity dock, a texture upload). Records are coalesced: the newest one is
-shown at most every :attr:`EngineRunner.UPDATE_INTERVAL_MS`, together with the
-newest preview that arrived since the last update; the engine's records themselves
-are not changed or dropped on its side.
+of the window, a texture upload) -- as does each queued cross-thread signal. So the
+worker does not signal every record: :func:`_relay` leaves the newest record (and the
+newest preview) in a :class:`_Mailbox` and wakes the main thread at most once per
+:attr:`EngineRunner.UPDATE_INTERVAL_MS`; a main-thread timer collects what arrived
+between wake-ups. The engine's records themselves are not changed.
 
 The handlers run one at a time, in the order the worker emitted its signals:
 napari's progress bars and notifications call ``QApplication.processEvents()``
@@ -45,6 +46,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Generator
@@ -60,6 +62,7 @@ from napari.utils.notifications import show_error, show_info, show_warning
 from qtpy.QtCore import QEvent, QObject, Qt, QTimer
 from qtpy.QtWidgets import (
     QCheckBox,
+    QComboBox,
     QDockWidget,
     QDoubleSpinBox,
     QFrame,
@@ -273,14 +276,56 @@ def first_line(err: BaseException) -> str:
     return text.splitlines()[0] if text else type(err).__name__
 
 
-def _relay(gen: Generator):
-    """Runs in the worker thread: relay an engine generator's records and result.
+class _Mailbox:
+    """The newest record and the newest preview of a run, from the worker to the main thread."""
 
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._record: Progress | None = None
+        self._preview: Progress | None = None
+        #: Records put in so far.
+        self.count = 0
+
+    def put(self, record: Progress) -> None:
+        with self._lock:
+            self._record = record
+            self.count += 1
+            if record.preview is not None:
+                self._preview = record
+
+    def take(self) -> tuple[Progress | None, Progress | None]:
+        """The newest record and newest preview record since the last take (or None)."""
+        with self._lock:
+            out = (self._record, self._preview)
+            self._record = self._preview = None
+        return out
+
+
+#: What the worker yields to wake the main thread: "look in the mailbox".
+_WAKE = object()
+
+
+def _relay(gen: Generator, mailbox: _Mailbox, interval: float):
+    """Runs in the worker thread: run an engine generator, post its records, return its result.
+
+    Each record goes to ``mailbox``; the worker yields (signals the main thread, and
+    lets a cancel in) at most once per ``interval`` seconds while records flow.
     Exceptions come back as a :class:`Failed` result (see the module notes). Closing
-    this generator (``GeneratorExit``) is not an exception and closes ``gen`` too.
+    this generator (``GeneratorExit``) is not an exception; the runner closes ``gen``.
     """
+    last = -math.inf
     try:
-        return (yield from gen)
+        while True:
+            try:
+                record = next(gen)
+            except StopIteration as stop:
+                return stop.value
+            if isinstance(record, Progress):
+                mailbox.put(record)
+            now = time.perf_counter()
+            if now - last >= interval:
+                last = now
+                yield _WAKE
     except ValueError as err:  # the engine's documented "bad input" error
         logger.debug("the engine refused the input", exc_info=True)
         return Failed(first_line(err))
@@ -324,18 +369,16 @@ class EngineRunner:
         self._queue: deque = deque()
         self._delivering = False
         self._outcome = ""
-        self._pending: Progress | None = None
-        self._pending_preview: Progress | None = None
+        self._mailbox = _Mailbox()
         self._last_update = -math.inf
         self._started_at = 0.0
-        # the runner's own timer, not a child of the owner: records may still arrive
-        # (and be dropped) after the owner is gone
+        # the runner's own timer, not a child of the owner: it may fire once more
+        # after the owner is gone. It collects records that arrived between wake-ups.
         self._timer = QTimer()
-        self._timer.setSingleShot(True)
-        self._timer.timeout.connect(lambda: self._deliver(self._update))
-        #: Progress records received in the current (or last) run.
-        self.n_records = 0
-        #: Updates of the display they caused (at most one per interval).
+        self._timer.setInterval(self.UPDATE_INTERVAL_MS)
+        self._timer.timeout.connect(lambda: self._deliver(self._update, False))
+        #: Updates of the display in the current (or last) run (at most about one per
+        #: interval).
         self.n_updates = 0
         self.progress_bar: progress | None = None
         self._on_result: Callable = _ignore
@@ -359,6 +402,11 @@ class EngineRunner:
         """How the last run ended: ``""`` (none yet), ``"done"``, ``"failed"``,
         ``"cancelled"``, or ``"refused"`` (not started: see :meth:`refuse`)."""
         return self._outcome
+
+    @property
+    def n_records(self) -> int:
+        """Progress records the engine yielded in the current (or last) run."""
+        return self._mailbox.count
 
     # -- control ---------------------------------------------------------------------------
     def start(self, gen: Generator, on_result: Callable, *, on_preview: Callable | None = None,
@@ -393,16 +441,17 @@ class EngineRunner:
         self._on_preview = on_preview or _ignore
         self._on_end = on_end or _ignore
         self._outcome = ""
-        self._pending = self._pending_preview = None
+        self._mailbox = mailbox = _Mailbox()
         self._last_update = -math.inf
         self._started_at = time.perf_counter()
-        self.n_records = self.n_updates = 0
+        self.n_updates = 0
         self.progress_bar = progress(total=0, desc=self.title)
         handlers = {"yielded": self._on_yielded, "returned": self._on_returned,
                     "warned": self._on_warned, "errored": self._on_errored,
                     "aborted": self._on_aborted, "finished": self._on_finished}
         worker = create_worker(
-            _relay, gen, _start_thread=False, _worker_class=GeneratorWorker,
+            _relay, gen, mailbox, self.UPDATE_INTERVAL_MS / 1e3, _start_thread=False,
+            _worker_class=GeneratorWorker,
             _connect={name: partial(self._deliver, handler)
                       for name, handler in handlers.items()})
         self._worker = worker
@@ -413,6 +462,7 @@ class EngineRunner:
             self._meter.setRange(0, 0)  # busy until the first record
             self._meter.setFormat("starting…")
             self._meter.setVisible(True)
+        self._timer.start()
         worker.start()
         return worker
 
@@ -462,28 +512,27 @@ class EngineRunner:
         if error is not None:
             raise error
 
-    def _on_yielded(self, record) -> None:
-        """Keep the newest record (and preview); show them now or when the interval ends."""
-        if not isinstance(record, Progress) or self._worker is None:
-            return
-        self.n_records += 1
-        self._pending = record
-        if record.preview is not None:
-            self._pending_preview = record
-        wait = self._last_update + self.UPDATE_INTERVAL_MS / 1e3 - time.perf_counter()
-        if wait <= 0:
-            self._timer.stop()
-            self._update()
-        elif not self._timer.isActive():
-            self._timer.start(max(1, math.ceil(wait * 1e3)))
+    def _on_yielded(self, token) -> None:
+        """The worker has posted records: show the newest now."""
+        if token is _WAKE:
+            self._update(True)
 
-    def _update(self) -> None:
-        """Show the newest record: status, dock meter, napari's progress bar, preview."""
-        record, preview = self._pending, self._pending_preview
-        self._pending = self._pending_preview = None
-        if record is None or self._worker is None:
+    def _update(self, woken: bool) -> None:
+        """Show the newest record: status, dock meter, napari's progress bar, preview.
+
+        At most once per interval (to 10%): a wake-up that comes sooner leaves the
+        record in the mailbox for the timer (``woken`` False), which comes round
+        every interval.
+        """
+        if self._worker is None:
             return
-        self._last_update = time.perf_counter()
+        now = time.perf_counter()
+        if now - self._last_update < 0.9 * self.UPDATE_INTERVAL_MS / 1e3:
+            return
+        record, preview = self._mailbox.take()
+        if record is None:
+            return
+        self._last_update = now
         self.n_updates += 1
         if self._alive:
             self._status.setText(f"{self.title}: {record.message or 'running'}")
@@ -518,7 +567,7 @@ class EngineRunner:
 
     def _drop_pending(self) -> None:
         self._timer.stop()
-        self._pending = self._pending_preview = None
+        self._mailbox.take()
 
     def _on_returned(self, result) -> None:
         self._drop_pending()
@@ -766,10 +815,14 @@ def dock_layout(widget: QWidget, content: QLayout) -> QScrollArea:
     """
     inner = QWidget()
     inner.setLayout(content)
+    for combo in inner.findChildren(QComboBox):  # long choices must not widen the dock
+        combo.setSizeAdjustPolicy(
+            QComboBox.SizeAdjustPolicy.AdjustToMinimumContentsLengthWithIcon)
+        combo.setMinimumContentsLength(14)
     area = QScrollArea()
     area.setWidgetResizable(True)
     area.setFrameShape(QFrame.Shape.NoFrame)
-    area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+    area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAsNeeded)
     area.setWidget(inner)
     bar = area.verticalScrollBar().sizeHint().width()
     area.setMinimumWidth(inner.minimumSizeHint().width() + bar)
