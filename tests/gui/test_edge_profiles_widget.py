@@ -265,3 +265,56 @@ def test_a_users_choice_of_profiles_sticks(qtbot, detected):
     motion.profiles_combo.value = None  # "detect automatically"
     motion.reset_choices()  # as napari does whenever a layer is added or removed
     assert motion.profiles_combo.value is None
+
+
+def test_both_widgets_show_the_one_auto_max_blur_of_the_chosen_image(qtbot, viewer_model):
+    """Issue 15, item 3: the Edge profiles widget showed 15 px while detection used 27."""
+    from napari_edgecme.core.estimate import default_max_blur
+
+    photo = viewer_model.add_image(np.zeros((406, 679), np.float32), name="photo")
+    # built with the layer already there (as when docked after opening a photo)
+    profiles = EdgeProfilesWidget(viewer_model)
+    motion = CameraMotionWidget(viewer_model)
+    for widget in (profiles, motion):
+        qtbot.addWidget(widget)
+    assert default_max_blur((406, 679)) == 27.0
+    for widget in (profiles, motion):
+        assert widget.image_combo.value is photo and widget.max_blur.auto.isChecked()
+        assert widget.max_blur.spin.value() == 27.0
+        assert widget.max_blur.value_for((406, 679)) == 27.0
+    small = viewer_model.add_image(np.zeros((200, 120), np.float32), name="small")
+    for widget in (profiles, motion):
+        widget.reset_choices()
+        widget.image_combo.value = small
+        assert widget.max_blur.spin.value() == default_max_blur((200, 120)) == 15.0
+        widget.image_combo.value = photo
+        assert widget.max_blur.spin.value() == 27.0
+
+
+def test_the_count_and_status_describe_the_chosen_image(qtbot, detected, wait_for_run):
+    """Issue 15, item 5: the profile count described the previous image."""
+    d = detected
+    assert d.widget.count_label.text().startswith(f"{len(profiles_of(d.shapes))} profiles in")
+    assert "detected in 'shaken'" in d.widget.status.text()
+    other = d.viewer.add_image(np.zeros((64, 64), np.float32), name="other")
+    d.widget.reset_choices()
+    d.widget.image_combo.value = other
+    assert d.widget.count_label.text() == "no profiles for 'other' yet: Detect, or Pick by hand"
+    assert d.widget.status.text() == ""
+    assert d.widget.current_layers is None
+    # selecting the first image's profile layer brings its image and set back
+    d.viewer.layers.selection.active = d.shapes
+    assert d.widget.image_combo.value is d.image
+    assert d.widget.current_layers[0] is d.shapes
+    assert "profiles in 'shaken edge profiles'" in d.widget.count_label.text()
+
+
+def test_a_run_refused_on_the_main_thread_replaces_a_stale_cancelled(qtbot, viewer_model,
+                                                                      notifications):
+    widget = EdgeProfilesWidget(viewer_model)
+    qtbot.addWidget(widget)
+    widget.status.setText("Edge profiles: cancelled")  # left by an earlier run
+    widget.detect_button.click()  # no image layer at all
+    assert widget.runner.outcome == "refused"
+    assert widget.status.text() == "Edge profiles: not run: choose an image layer first"
+    assert notifications.texts("error") == ["Edge profiles: choose an image layer first"]
