@@ -115,6 +115,7 @@ def test_the_latent_preview_updates_while_xu_refines(setup, wait_for_run):
              s.viewer.layers.index(event.value))))
 
     s.viewer.layers.events.inserted.connect(on_inserted)
+    s.widget.runner.PREVIEW_INTERVAL_MS = 0  # every preview: the iterations are fast here
     s.widget.run_button.click()
     wait_for_run(s.widget)
     preview = inserted[0]

@@ -82,6 +82,7 @@ def test_handlers_run_in_order_even_when_one_processes_events(ui, wait_for_run):
             yield Progress("demo", i + 1, 3, "working", preview=np.zeros((2, 2)))
         return 42
 
+    ui.runner.PREVIEW_INTERVAL_MS = 100  # every preview shown: they come 150 ms apart
     ui.runner.start(three(), on_result=on_result, on_preview=on_preview,
                     on_end=lambda outcome: calls.append(outcome))
     wait_for_run(ui)

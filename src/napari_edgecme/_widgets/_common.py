@@ -107,6 +107,7 @@ __all__ = [
     "spatial_kwargs",
     "style_axes",
     "theme_colours",
+    "time_left",
 ]
 
 logger = logging.getLogger(__name__)
@@ -351,9 +352,12 @@ class EngineRunner:
         A progress bar in the dock: percentage and time left, shown while running.
     """
 
-    #: Shortest interval (ms) between two updates of the status, the progress bars
-    #: and the preview (records in between are coalesced; see the module notes).
+    #: Shortest interval (ms) between two updates of the status and the progress bars
+    #: (records in between are coalesced; see the module notes).
     UPDATE_INTERVAL_MS = 100
+    #: Shortest interval (ms) between two previews: showing one is a texture upload
+    #: and a canvas redraw (~50-100 ms of main thread with software GL).
+    PREVIEW_INTERVAL_MS = 1000
 
     def __init__(self, owner: QWidget, title: str, run_button: QPushButton,
                  cancel_button: QPushButton, status: QLabel,
@@ -370,7 +374,8 @@ class EngineRunner:
         self._delivering = False
         self._outcome = ""
         self._mailbox = _Mailbox()
-        self._last_update = -math.inf
+        self._last_update = self._last_preview = -math.inf
+        self._held_preview: Progress | None = None
         self._started_at = 0.0
         # the runner's own timer, not a child of the owner: it may fire once more
         # after the owner is gone. It collects records that arrived between wake-ups.
@@ -423,7 +428,7 @@ class EngineRunner:
             an optional summary line for the status label.
         on_preview : callable, optional
             ``on_preview(progress)`` on the main thread with the newest record that
-            carries a preview, at most once per :attr:`UPDATE_INTERVAL_MS`.
+            carries a preview, at most once per :attr:`PREVIEW_INTERVAL_MS`.
         on_end : callable, optional
             ``on_end(outcome)`` on the main thread after every run, whatever its
             outcome (``"done"``, ``"failed"``, ``"cancelled"``): clean-up of transient
@@ -442,7 +447,8 @@ class EngineRunner:
         self._on_end = on_end or _ignore
         self._outcome = ""
         self._mailbox = mailbox = _Mailbox()
-        self._last_update = -math.inf
+        self._last_update = self._last_preview = -math.inf
+        self._held_preview = None
         self._started_at = time.perf_counter()
         self.n_updates = 0
         self.progress_bar = progress(total=0, desc=self.title)
@@ -530,6 +536,11 @@ class EngineRunner:
         if now - self._last_update < 0.9 * self.UPDATE_INTERVAL_MS / 1e3:
             return
         record, preview = self._mailbox.take()
+        preview = preview or self._held_preview
+        self._held_preview = None
+        if preview is not None and (record is None or now - self._last_preview
+                                    < self.PREVIEW_INTERVAL_MS / 1e3):
+            self._held_preview, preview = preview, None  # shown at a later update
         if record is None:
             return
         self._last_update = now
@@ -538,6 +549,7 @@ class EngineRunner:
             self._status.setText(f"{self.title}: {record.message or 'running'}")
             self._show_meter(record)
             if preview is not None:
+                self._last_preview = now
                 self._on_preview(preview)
         bar = self.progress_bar
         if bar is not None:
@@ -568,6 +580,7 @@ class EngineRunner:
     def _drop_pending(self) -> None:
         self._timer.stop()
         self._mailbox.take()
+        self._held_preview = None
 
     def _on_returned(self, result) -> None:
         self._drop_pending()

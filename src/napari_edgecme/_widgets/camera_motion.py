@@ -3,12 +3,14 @@
 Runs :func:`~napari_edgecme.core.estimate.iter_estimate_motion` (EpAlone, Xu or
 Xu+Ep, paper Eqs. 19-22) in a worker thread, with a progress bar per scale and
 iteration and, for Xu and Xu+Ep, a live preview layer of the latent image as it
-refines. Results, aligned with the input image (same scale and translate):
+refines (see-through, just above the photo, never taking the layer selection).
+Results, aligned with the input image (same scale and translate):
 
 * ``"<image> PSF field"``: the local PSFs on a grid, each enlarged by one stated
-  factor on a gray tile at its sample point (:func:`._psf_view.psf_glyphs`), over
-  the image, carrying the motion in ``metadata["edgecme_motion"]`` as the JSON dict
-  of the motion file, so it survives saving and feeds the "Deconvolution" widget;
+  factor (``metadata["edgecme_psf_enlargement"]``, and on the status line) on a
+  gray tile at its sample point (:func:`._psf_view.psf_glyphs`), over the image,
+  carrying the motion in ``metadata["edgecme_motion"]`` as the JSON dict of the
+  motion file, so it survives saving and feeds the "Deconvolution" widget;
 * ``"<image> latent"`` (Xu, Xu+Ep; hidden): the last latent estimate;
 * a plot of the motion density function in pose space (marker size = weight);
 * "Save motion…" writes the motion file (JSON).
