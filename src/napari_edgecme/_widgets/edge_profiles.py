@@ -169,6 +169,10 @@ class EdgeProfilesWidget(QWidget):
         self.plot_caption.setWordWrap(True)
         self.canvas, self._axes = plot_canvas(viewer, 2, height=2.2)
         self._redraw = deferred_draw(self.canvas) if self._axes else (lambda: None)
+        self.canvas.setToolTip(
+            "Left: each edge profile, the blurred step from dark (0) to bright (1) across "
+            "the edge (alpha matte, Eq. 1). Right: its slope, which is a slice of the "
+            "local blur (PSF) across the edge (a Radon projection, Eq. 11)")
         self.plot_section = QCollapsible("Plot: profiles and their slopes")
         plots = QWidget()
         plots_layout = QVBoxLayout(plots)
@@ -529,8 +533,8 @@ class EdgeProfilesWidget(QWidget):
             for artist in [*ax.lines, *ax.collections]:
                 artist.remove()
         fg = ax_p.xaxis.label.get_color()
-        ax_p.set_title("edge profile (alpha, Eq. 1)", fontsize=8)
-        ax_d.set_title("its slope: a blur slice (Eq. 11)", fontsize=8)
+        ax_p.set_title("edge profile (α, Eq. 1)", fontsize=8)
+        ax_d.set_title("its slope (Eq. 11)", fontsize=8)
         ax_p.set_xlabel("offset (px)", fontsize=8)
         ax_d.set_xlabel("offset (px)", fontsize=8)
         caption = "" if profiles is None else "no profiles"
