@@ -167,7 +167,7 @@ def cases(arrays: dict) -> list[Case]:
              lambda f: deconvolve(np.full((8, 8), 0.5), CameraMotion.load(f / "big-blur-8px.json"),
                                   "wiener"), "deconvolve",
              ["deconvolve", "eight.png", "--motion", "big-blur-8px.json", "-o", "out.png",
-              "--method", "wiener"]),
+              "--deconvolution", "wiener"]),
         Case("constant image (no edges), xu+ep", est(np.full((96, 96), 0.4)),
              "estimate_motion", [*est_cli[:1], "flat.png", *est_cli[1:], "--max-blur", "7"]),
         Case("constant image (no edges), ep", est(np.full((96, 96), 0.4), method="ep"),
@@ -193,7 +193,7 @@ def cases(arrays: dict) -> list[Case]:
         out.append(Case(f"dtype {dtype}", dtype_api(image, motion), "deconvolve",
                         None if file is None else
                         ["deconvolve", file, "--motion", "truth.json", "-o", "out.tif",
-                         "--method", "wiener"]))
+                         "--deconvolution", "wiener"]))
     u8 = np.round(blurred * 255).astype(np.uint8)
     alpha = np.full_like(u8, 128)
     out += [
@@ -201,10 +201,10 @@ def cases(arrays: dict) -> list[Case]:
              [*est_cli[:1], "gray-alpha.png", *est_cli[1:], "--max-blur", "7", "--method", "xu"]),
         Case("RGBA", lambda f: deconvolve(np.stack([u8, u8, u8, alpha], -1), motion),
              "deconvolve", ["deconvolve", "rgba.png", "--motion", "truth.json", "-o", "out.png",
-                            "--method", "wiener"]),
+                            "--deconvolution", "wiener"]),
         Case("RGBA, opaque", None, "",
              ["deconvolve", "rgba-opaque.png", "--motion", "truth.json", "-o", "out.png",
-              "--method", "wiener"]),
+              "--deconvolution", "wiener"]),
         Case("3-D stack (5 planes)", est(np.stack([u8] * 5)), "estimate_motion",
              ["deblur", "stack.tif", "-o", "out.png"]),
         Case("huge max_blur (1e6)", est(blurred, max_blur=1e6), "estimate_motion",
@@ -235,7 +235,7 @@ def cases(arrays: dict) -> list[Case]:
                             "out.png", "--lam", "0"]),
         Case("zero RL iterations", lambda f: deconvolve(blurred, motion, "rl", iterations=0),
              "deconvolve", ["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
-                            "out.png", "--method", "rl", "--iterations", "0"]),
+                            "out.png", "--deconvolution", "rl", "--iterations", "0"]),
         Case("unknown method name", est(blurred, method="fergus"), "estimate_motion",
              [*est_cli[:1], "blurred.png", *est_cli[1:], "--method", "fergus"]),
         Case("unknown model name", est(blurred, model="affine"), "estimate_motion",
@@ -243,7 +243,7 @@ def cases(arrays: dict) -> list[Case]:
         Case("unknown deconvolution method",
              lambda f: deconvolve(blurred, motion, "lucy"), "deconvolve",
              ["deconvolve", "blurred.png", "--motion", "truth.json", "-o", "out.png",
-              "--method", "lucy"]),
+              "--deconvolution", "lucy"]),
         Case("unknown parameter name", est(blurred, lamda_w=1e-3), "estimate_motion"),
     ]
     motion_cli = ["deconvolve", "blurred.png", "-o", "out.png", "--method", "wiener",

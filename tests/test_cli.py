@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -198,7 +199,7 @@ def test_deblur_falls_back_to_xu_with_one_warning_line_when_edges_are_missing(tm
 @pytest.mark.parametrize("method", ["hyperlaplacian", "rl", "wiener"])
 def test_deconvolve_with_the_true_motion_improves_psnr(method, cd, capsys):
     status, _, err = run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
-                          "r.tif", "--method", method], capsys)
+                          "r.tif", "--deconvolution", method], capsys)
     assert status == 0, err
     restored = read_image("r.tif")
     assert restored.dtype == np.float32 and restored.shape == (128, 128)  # TIFF keeps float32
@@ -216,9 +217,29 @@ def test_deconvolve_keeps_16_bit_and_rgb(cd, capsys):
     assert read_image("r16.png").dtype == np.uint16
     write_image("rgb.png", np.stack([gray8, gray8[::-1], gray8[:, ::-1]], -1))
     assert run(["deconvolve", "rgb.png", "--motion", "truth.json", "-o", "r.png",
-                "--method", "wiener"], capsys)[0] == 0
+                "--deconvolution", "wiener"], capsys)[0] == 0
     restored = read_image("r.png")
     assert restored.shape == (128, 128, 3) and restored.dtype == np.uint8
+
+
+def test_deconvolve_names_the_deconvolution_as_deblur_does_and_keeps_the_old_name(cd, capsys):
+    """One name for one thing: '--method' is the estimator in 'deblur', so the
+    deconvolution is '--deconvolution' in both; the old spelling works for one release."""
+    assert run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o", "new.tif",
+                "--deconvolution", "wiener"], capsys)[0] == 0
+    status, _, err = run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
+                          "old.tif", "--method", "wiener"], capsys)
+    assert status == 0
+    assert err[0].startswith("edgecme: warning: 'deconvolve --method' is now "
+                             "'--deconvolution'")
+    assert "(wiener," in err[-1]
+    np.testing.assert_array_equal(read_image("old.tif"), read_image("new.tif"))
+    status, _, err = run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
+                          "x.tif", "--method", "rl", "--deconvolution", "wiener"], capsys)
+    assert status == 2 and "disagree" in err[-1] and not os.path.exists("x.tif")
+    for command in ("deblur", "deconvolve"):
+        _, out, _ = run([command, "--help"], capsys)
+        assert "--deconvolution" in out
 
 
 def test_rgba_input_drops_the_alpha_channel_with_a_warning(cd, capsys):
@@ -227,7 +248,7 @@ def test_rgba_input_drops_the_alpha_channel_with_a_warning(cd, capsys):
     alpha[:10] = 0
     write_image("rgba.png", np.stack([gray8, gray8, gray8, alpha], -1))
     status, _, err = run(["deconvolve", "rgba.png", "--motion", "truth.json", "-o", "r.png",
-                          "--method", "wiener"], capsys)
+                          "--deconvolution", "wiener"], capsys)
     assert status == 0
     assert err[0] == "edgecme: warning: rgba.png: the alpha channel is ignored"
     assert read_image("r.png").shape == (128, 128, 3)
@@ -244,6 +265,27 @@ def test_profiles_writes_a_profile_file_and_a_plot(cd, capsys):
     assert f"median confidence {np.median(profiles.confidence):.2f}" in err[-1]
     assert profiles.coverage_summary() in err[-1] and "/8 orientations" in err[-1]
     assert read_image("p.png").ndim == 3  # a matplotlib figure
+
+
+def test_a_plot_that_cannot_be_drawn_never_costs_the_profiles(cd, capsys, monkeypatch):
+    def broken(self, *args, **kwargs):
+        raise RuntimeError("no display backend\nsecond line")
+
+    monkeypatch.setattr(EdgeProfiles, "figure", broken)
+    status, _, err = run(["profiles", "blurred.png", "-o", "p.json", "--max-blur", "13",
+                          "--plot", "p.png"], capsys)
+    assert status == 0, err
+    assert len(EdgeProfiles.load("p.json")) > 0 and not os.path.exists("p.png")
+    assert any(line == "edgecme: warning: could not draw --plot p.png: no display backend; "
+               "the profiles were written to p.json" for line in err)
+    assert "wrote p.json" in " ".join(err) and "p.png" not in err[-2]
+
+
+def test_matplotlib_is_a_dependency_so_plots_are_expected():
+    from importlib.metadata import requires
+
+    assert any(r.split(";")[0].strip().startswith("matplotlib")
+               and "extra" not in r for r in requires("napari-edgecme"))
 
 
 def test_profiles_on_an_image_without_edges_warns_and_writes_an_empty_file(tmp_path, capsys):
@@ -452,7 +494,7 @@ def test_a_failed_write_leaves_no_file(cd, capsys, monkeypatch):
     monkeypatch.setattr(cio, "write_image", failing)
     before = listing(cd)
     status, _, err = run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
-                          "out.png", "--method", "wiener"], capsys)
+                          "out.png", "--deconvolution", "wiener"], capsys)
     monkeypatch.setattr(cio, "write_image", real)
     assert status == 2 and len(err) == 1 and "No space left on device" in err[0]
     assert listing(cd) == before
@@ -536,7 +578,7 @@ def test_console_script_runs_and_exits_2_on_bad_input(work):
 
 def test_python_dash_m_runs_the_cli(work):
     res = subprocess.run([sys.executable, "-m", "napari_edgecme", "deconvolve", "blurred.png",
-                          "--motion", "truth.json", "-o", "r.png", "--method", "wiener",
+                          "--motion", "truth.json", "-o", "r.png", "--deconvolution", "wiener",
                           "--quiet"], cwd=work, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and res.stderr == "", res.stderr
     assert read_image(work / "r.png").shape == (128, 128)

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .core import io as _io
+from .core._validation import first_line
 from .core.deconv import iter_deconvolve
 from .core.edges import EdgeProfiles, extract_edge_profiles
 from .core.estimate import iter_estimate_motion
@@ -90,9 +91,6 @@ def _check_folder(out: Path) -> None:
                          f"{out.parent} does not exist")
 
 
-def _first_line(err: BaseException) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
 
 
 def run_demo(out="edgecme-demo", *, size: int | None = None, seed: int = 0,
@@ -173,11 +171,11 @@ def run_demo(out="edgecme-demo", *, size: int | None = None, seed: int = 0,
         except Exception as err:  # an estimator failing is a result of the demo
             if debug:
                 traceback.print_exc()
-            row["failed"] = f"{type(err).__name__}: {_first_line(err)}"
-            warn(f"{name} failed: {_first_line(err)}")
+            row["failed"] = f"{type(err).__name__}: {first_line(err)}"
+            warn(f"{name} failed: {first_line(err)}")
             rows.append(row)
             continue
-        notes = list(dict.fromkeys(_first_line(w.message) for w in caught))
+        notes = list(dict.fromkeys(first_line(w.message) for w in caught))
         for note in notes:
             warn(f"{name}: {note}")
         estimates[method] = est.motion

@@ -56,6 +56,7 @@ import numpy as np
 from . import _bench
 from . import cli as _cli
 from .core import io as _io
+from .core._validation import first_line
 from .core.progress import Progress
 
 __all__ = ["BatchResult", "Photo", "collect_photos", "deblur_many", "deblur_photo",
@@ -286,18 +287,18 @@ def deblur_photo(name: str, data: bytes, options: argparse.Namespace) -> dict:
                     ("after", "after.png"), ("psf", "psf.png"), ("motion", "motion.json"))})
             notes = [line.removeprefix(f"{_cli.PROG}: warning: ")
                      for line in stream.getvalue().splitlines()]
-            notes += [_cli._one_line(w.message) for w in caught
+            notes += [first_line(w.message) for w in caught
                       if issubclass(w.category, UserWarning)]
             row["notes"] = [own(note) for note in dict.fromkeys(notes)]
             row["warnings"] = " | ".join(row["notes"])
         except (_cli.CLIError, ValueError) as err:
-            row["reason"] = own(_cli._one_line(err))
+            row["reason"] = own(first_line(err))
         except MemoryError:
             row["reason"] = "out of memory; try a smaller max_side for the estimation"
         except OSError as err:
             row["reason"] = own(_cli._oserror(err))
         except Exception as err:  # a bug: the batch goes on, the report says what it was
-            row["reason"] = f"internal error: {type(err).__name__}: {own(_cli._one_line(err))}"
+            row["reason"] = f"internal error: {type(err).__name__}: {own(first_line(err))}"
     row["seconds"] = round(time.perf_counter() - t0, 2)
     row["worker"] = _worker_name()
     peak = _bench._peak_rss_mib()  # the worker process's own high-water mark
@@ -520,7 +521,7 @@ class _Cluster:
             except (OSError, TimeoutError, ValueError) as err:
                 self._stack.close()
                 raise ValueError(f"cannot connect to the Dask scheduler at "
-                                 f"{self.scheduler}: {_cli._one_line(err)}") from None
+                                 f"{self.scheduler}: {first_line(err)}") from None
             threads = sum(client.nthreads().values())
             self.description = (f"Dask scheduler {self.scheduler} ({len(client.nthreads())} "
                                 f"workers, {threads} threads)")
@@ -664,7 +665,7 @@ def _task_row(photo: Photo, future) -> dict:
     if name == "KilledWorker":
         reason = "its worker died (out of memory or killed) while deblurring it"
     else:
-        reason = f"task failed: {name}: {_cli._one_line(err)}"
+        reason = f"task failed: {name}: {first_line(err)}"
     return {"photo": photo.name, "status": FAILED, "reason": reason, "files": {}}
 
 

@@ -56,6 +56,7 @@ from . import __version__
 from .core import deconv as _deconv
 from .core import estimate as _estimate
 from .core import io as _io
+from .core._validation import first_line
 from .core.camera import MODELS, Intrinsics
 from .core.motion import CameraMotion
 from .core.progress import Progress, drive
@@ -519,6 +520,14 @@ def cmd_deconvolve(args, console: _Console) -> int:
     motion_path = _existing_input(args.motion, "motion file")
     _check_output(args.output, "-o", image=True)
     _distinct([("IMAGE", path), ("--motion", motion_path)], [("-o", args.output)])
+    if args.old_method is not None:
+        if args.deconvolution not in (None, args.old_method):
+            raise CLIError(f"--method {args.old_method} and --deconvolution "
+                           f"{args.deconvolution} disagree; give only --deconvolution")
+        console.warn("'deconvolve --method' is now '--deconvolution' (as in 'deblur'); "
+                     "the old name goes in the next release")
+        args.deconvolution = args.old_method
+    args.method = args.deconvolution or "hyperlaplacian"
     params = _deconv_params(args, args.method)
     motion = CameraMotion.load(motion_path)
     image = read_input_image(path, console)
@@ -561,10 +570,16 @@ def cmd_profiles(args, console: _Console) -> int:
     t0 = time.perf_counter()
     profiles = extract_edge_profiles(image, max_blur, rng=args.seed)
     seconds = time.perf_counter() - t0
-    with _writing(*(p for _, p in outputs)) as tmps:
-        profiles.save(tmps[0])
-        if args.plot is not None:
-            profiles.figure().savefig(tmps[1], dpi=100)
+    with _writing(args.output) as (tmp,):  # the profiles first: a plot must not cost them
+        profiles.save(tmp)
+    if args.plot is not None:
+        try:
+            with _writing(args.plot) as (tmp,):
+                profiles.figure().savefig(tmp, dpi=100)
+        except Exception as err:
+            console.warn(f"could not draw --plot {args.plot}: {first_line(err)}; the profiles "
+                         f"were written to {args.output}")
+            outputs = outputs[:1]
     if len(profiles) == 0:
         console.warn(f"no usable edge profiles in {path}: {profiles.reason}")
     wrote = ", ".join(str(p) for _, p in outputs)
@@ -833,9 +848,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="camera motion (applied at the image's size)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
                    help="restored image (.png, .tif keeps float32, .jpg, .bmp)")
-    p.add_argument("--method", choices=_deconv.METHODS, default="hyperlaplacian",
+    p.add_argument("--deconvolution", choices=_deconv.METHODS, default=None,
                    help="hyperlaplacian (Krishnan & Fergus), rl (Richardson-Lucy) or wiener "
-                        "(default: %(default)s)")
+                        "(default: hyperlaplacian), as in 'deblur'")
+    p.add_argument("--method", dest="old_method", choices=_deconv.METHODS, default=None,
+                   help="the old name of --deconvolution in this command (it means the "
+                        "estimator in 'estimate' and 'deblur'); removed in the next release")
     _add_deconvolution(p)
 
     p = command("profiles", cmd_profiles, "detect and save edge profiles",
@@ -918,13 +936,10 @@ def build_parser() -> argparse.ArgumentParser:
 # main
 # --------------------------------------------------------------------------------------
 
-def _one_line(err: BaseException) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
 
 
 def _oserror(err: OSError) -> str:
-    what = err.strerror or _one_line(err)
+    what = err.strerror or first_line(err)
     return f"{what}: {err.filename}" if err.filename else what
 
 
@@ -958,7 +973,7 @@ def main(argv=None) -> int:
     except (CLIError, ValueError) as err:
         if args.debug:
             traceback.print_exc()
-        console.error(_one_line(err))
+        console.error(first_line(err))
         return EXIT_USAGE
     except MemoryError:
         if args.debug:
@@ -973,6 +988,6 @@ def main(argv=None) -> int:
     except Exception as err:
         if args.debug:
             traceback.print_exc()
-        console.error(f"internal error: {type(err).__name__}: {_one_line(err)} "
+        console.error(f"internal error: {type(err).__name__}: {first_line(err)} "
                       "(please report it; --debug shows the traceback)")
         return EXIT_INTERNAL

@@ -78,6 +78,7 @@ from qtpy.QtWidgets import (
 )
 from superqt.utils import GeneratorWorker
 
+from ..core._validation import first_line
 from ..core.camera import DEFAULT_FOCAL_35MM
 from ..core.estimate import default_max_blur
 from ..core.io import exif_focal_35mm
@@ -272,9 +273,6 @@ class Failed:
     error: Exception | None = None
 
 
-def first_line(err: BaseException) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
 
 
 class _Mailbox:

@@ -166,3 +166,13 @@ def check_positive(value, name: str, *, integer: bool = False, allow_zero: bool 
     if maximum is not None and value > maximum:
         raise ValueError(f"{name} must be <= {maximum}; got {value!r}")
     return int(value) if integer else float(value)
+
+
+def first_line(err: BaseException) -> str:
+    """The first line of an exception's message (its type's name when it has none).
+
+    Every face of the program reports an error in one line: the CLI, the widgets'
+    notifications and status lines, the batch report, the files' "cannot read" messages.
+    """
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._validation import first_line
+
 __all__ = ["IMAGE_SUFFIXES", "atomic_path", "exif_focal_35mm", "read_image", "write_image"]
 
 #: Extensions read and written.
@@ -25,9 +27,6 @@ _EXIF_IFD = 0x8769
 _FOCAL_35MM = 0xA405  # FocalLengthIn35mmFilm
 
 
-def _first_line(err: Exception) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
 
 
 def read_image(path) -> np.ndarray:
@@ -60,7 +59,7 @@ def read_image(path) -> np.ndarray:
 
                 arr = iio.imread(path)
     except Exception as err:  # any decoder failure is a bad file for the user
-        why = _first_line(err)
+        why = first_line(err)
         if "Could not find a backend" in why:  # imageio's words for "no decoder knows it"
             why = "not an image file in a format that can be read (PNG, JPEG, TIFF, BMP, ...)"
         raise ValueError(f"cannot read image {path}: {why}") from None

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from ._validation import check_choice, check_positive
+from ._validation import check_choice, check_positive, first_line
 from .camera import (
     MODELS,
     Intrinsics,
@@ -399,7 +399,7 @@ class CameraMotion:
             weights = np.asarray(data["weights"], dtype=float)
         except (TypeError, ValueError, OverflowError) as err:
             # OverflowError: an integer too large for a float (JSON allows 1000 digits)
-            raise ValueError(f"motion file is malformed: {_first_line(err)}") from None
+            raise ValueError(f"motion file is malformed: {first_line(err)}") from None
         model = data["model"]
         if poses.size == 0:
             raise ValueError("motion file has no poses")
@@ -422,7 +422,7 @@ class CameraMotion:
         except FileNotFoundError:
             raise ValueError(f"motion file not found: {path}") from None
         except (OSError, UnicodeDecodeError) as err:
-            raise ValueError(f"cannot read motion file {path}: {_first_line(err)}") from None
+            raise ValueError(f"cannot read motion file {path}: {first_line(err)}") from None
         try:
             data = json.loads(text)
         except json.JSONDecodeError as err:
@@ -430,7 +430,7 @@ class CameraMotion:
                              f"(line {err.lineno})") from None
         except (ValueError, RecursionError) as err:  # a number of > 4300 digits, deep nesting
             raise ValueError(f"motion file {path} is not valid JSON: "
-                             f"{_first_line(err)}") from None
+                             f"{first_line(err)}") from None
         try:
             return cls.from_dict(data)
         except ValueError as err:
@@ -451,8 +451,6 @@ class CameraMotion:
                 f"image_shape={self.image_shape}, focal_px={self.intrinsics.focal_px:.1f})")
 
 
-def _first_line(err: Exception) -> str:
-    return str(err).splitlines()[0] if str(err) else type(err).__name__
 
 
 def _check_points(points) -> np.ndarray:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validation import check_positive
+from ._validation import check_positive, first_line
 from .edge_confidence import confidence
 
 __all__ = ["PROFILES_FORMAT", "PROFILES_VERSION", "EdgeProfiles"]
@@ -448,7 +448,7 @@ class EdgeProfiles:
         except FileNotFoundError:
             raise ValueError(f"profile file not found: {path}") from None
         except (OSError, UnicodeDecodeError) as err:
-            raise ValueError(f"cannot read profile file {path}: {_first_line(err)}") from None
+            raise ValueError(f"cannot read profile file {path}: {first_line(err)}") from None
         try:
             data = json.loads(text)
         except json.JSONDecodeError as err:
@@ -556,8 +556,6 @@ def _interp_rows(x, xp, fp, left, right) -> np.ndarray:
     return np.where(pos > M - 1, right, val)
 
 
-def _first_line(err: Exception) -> str:
-    return str(err).splitlines()[0] if str(err) else type(err).__name__
 
 
 def _jsonable(obj):
