@@ -40,6 +40,7 @@ from .latent import iter_l0_latent
 from .mdf import border_taper, edge_profile_term, gradient_term, psf_basis
 from .motion import CameraMotion, psf_size_for
 from .operators import PatchGrid
+from .photometry import LUMA
 from .progress import Progress, StopRequested, drive
 
 __all__ = [
@@ -176,8 +177,7 @@ def default_max_blur(shape) -> float:
 def _luminance(img: np.ndarray) -> np.ndarray:
     if img.ndim == 2:
         return img
-    coeffs = np.array([0.2125, 0.7154, 0.0721], img.dtype)
-    return img @ coeffs
+    return img @ LUMA.astype(img.dtype)
 
 
 def _contrast_gain(img: np.ndarray) -> tuple[float, float]:

@@ -19,7 +19,8 @@ import numpy as np
 
 from ._validation import first_line
 
-__all__ = ["IMAGE_SUFFIXES", "atomic_path", "exif_focal_35mm", "read_image", "write_image"]
+__all__ = ["IMAGE_SUFFIXES", "atomic_path", "exif_focal_35mm", "read_image", "read_json",
+           "write_image", "write_json"]
 
 #: Extensions read and written.
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
@@ -152,3 +153,35 @@ def write_image(path, image, bits: int | None = None) -> Path:
                 arr = (arr // 257).astype(np.uint8)
             iio.imwrite(tmp, arr, extension=suffix)
     return path
+
+
+def write_json(path, data, indent=None) -> None:
+    """Write ``data`` as JSON (one trailing newline), atomically (:class:`atomic_path`)."""
+    import json
+
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(data, fh, indent=indent)
+        fh.write("\n")
+
+
+def read_json(path, what: str):
+    """Parse the JSON file ``path``; any problem is one ``ValueError`` line naming ``what``.
+
+    ``what`` names the kind of file in the messages ("motion file", "profile file").
+    """
+    import json
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ValueError(f"{what} not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ValueError(f"cannot read {what} {path}: {first_line(err)}") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{what} {path} is not valid JSON: {err.msg} "
+                         f"(line {err.lineno})") from None
+    except (ValueError, RecursionError) as err:  # a number of > 4300 digits, deep nesting
+        raise ValueError(f"{what} {path} is not valid JSON: {first_line(err)}") from None

@@ -9,9 +9,7 @@ PSF at an image point is the MDF pushed through the displacements ``u = H_p x - 
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -406,31 +404,17 @@ class CameraMotion:
         return cls(model, intrinsics, poses, weights)
 
     def save(self, path) -> None:
-        """Write the motion as JSON (DESIGN.md section 6), atomically (temporary file + rename)."""
-        from .io import atomic_path
+        """Write the motion as JSON (the ``edgecme-motion`` format), atomically."""
+        from .io import write_json
 
-        with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(self.to_dict(), fh, indent=1)
-            fh.write("\n")
+        write_json(path, self.to_dict(), indent=1)
 
     @classmethod
     def load(cls, path) -> CameraMotion:
         """Read a motion file; any problem raises one ``ValueError`` line that names it."""
-        path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ValueError(f"motion file not found: {path}") from None
-        except (OSError, UnicodeDecodeError) as err:
-            raise ValueError(f"cannot read motion file {path}: {first_line(err)}") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise ValueError(f"motion file {path} is not valid JSON: {err.msg} "
-                             f"(line {err.lineno})") from None
-        except (ValueError, RecursionError) as err:  # a number of > 4300 digits, deep nesting
-            raise ValueError(f"motion file {path} is not valid JSON: "
-                             f"{first_line(err)}") from None
+        from .io import read_json
+
+        data = read_json(path, "motion file")
         try:
             return cls.from_dict(data)
         except ValueError as err:

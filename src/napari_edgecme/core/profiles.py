@@ -9,14 +9,11 @@ and loads from JSON (format ``edgecme-profiles``) and draws itself with matplotl
 
 from __future__ import annotations
 
-import json
 import math
-import os
-from pathlib import Path
 
 import numpy as np
 
-from ._validation import check_positive, first_line
+from ._validation import check_positive
 from .edge_confidence import confidence
 
 __all__ = ["PROFILES_FORMAT", "PROFILES_VERSION", "EdgeProfiles"]
@@ -428,32 +425,16 @@ class EdgeProfiles:
 
     def save(self, path) -> None:
         """Write the profiles as JSON, atomically (temporary file + rename)."""
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        try:
-            with open(tmp, "w", encoding="utf-8") as fh:
-                json.dump(self.to_dict(), fh)
-                fh.write("\n")
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
+        from .io import write_json
+
+        write_json(path, self.to_dict())
 
     @classmethod
     def load(cls, path) -> EdgeProfiles:
         """Read a profile file; any problem raises one ``ValueError`` line that names it."""
-        path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ValueError(f"profile file not found: {path}") from None
-        except (OSError, UnicodeDecodeError) as err:
-            raise ValueError(f"cannot read profile file {path}: {first_line(err)}") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise ValueError(f"profile file {path} is not valid JSON: {err.msg} "
-                             f"(line {err.lineno})") from None
+        from .io import read_json
+
+        data = read_json(path, "profile file")
         try:
             return cls.from_dict(data)
         except ValueError as err:
