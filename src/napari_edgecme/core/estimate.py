@@ -78,11 +78,6 @@ _GRADIENT_SMOOTHING = 1.0
 _LAMBDA_F_SCALING = 1.0
 _ROLL_FROM_BLUR = 12.0  # levels whose blur (px) is below this keep theta_z = 0
 _CLUSTER_FLOOR = 0.1  # clusters lighter than this share of the heaviest one are dropped
-#: In Xu+Ep (Eq. 22) the edge-profile term's energy grows with the number of profiles
-#: while the gradient term's does not; beyond this many profiles ``lambda_ip`` is scaled
-#: by ``EP_REFERENCE_COUNT / n`` so that the balance of the two terms stays that of a set
-#: of this size (``lambda_ip`` was chosen with sets of 20-60 profiles).
-EP_REFERENCE_COUNT = 40
 _SALIENT_START = 0.1  # share of latent gradients used by the first MDF update of a scale
 _WEIGHT_FLOOR = 1.0 / 20.0  # drop weights below this fraction of the largest (Whyte et al.)
 #: Alternations at the finest scale (at most; Xu, Xu+Ep). Measured on 16 synthetic
@@ -541,9 +536,6 @@ class _CoarseToFine:
         self.latent = None
         self.finest: _Level | None = None
 
-    def _ep_weight(self) -> float:
-        return _ep_weight_for(self.lambda_ip, self.profiles)
-
     def iterate(self, step: int, total: int, *, wide_start: bool = False,
                 lambda_f_factor: float = 1.0):
         method, scales, work_shape = self.method, self.scales, self.work.shape
@@ -575,7 +567,7 @@ class _CoarseToFine:
                     lam_f = max(lam_f / 1.1, 1e-4)
                     yield Progress("estimate", step, total, f"{where}: camera motion", **at)
                 weights, cost, n_lasso = _mdf_step(level, weights, active, self.latent,
-                                                   ep_images, self.lambda_w, self._ep_weight(),
+                                                   ep_images, self.lambda_w, self.lambda_ip,
                                                    method,
                                                    salient=_SALIENT_START * 1.1 ** min(it, 24))
                 self.motion = level.motion(weights)
@@ -589,12 +581,6 @@ class _CoarseToFine:
                                else None, **at)
             self.finest = level
         return self.motion, self.latent, step
-
-
-def _ep_weight_for(lambda_ip: float, profiles) -> float:
-    """``lambda_ip`` for a set of profiles: scaled down beyond :data:`EP_REFERENCE_COUNT`."""
-    n = 0 if profiles is None else len(profiles)
-    return lambda_ip * min(1.0, EP_REFERENCE_COUNT / n) if n else lambda_ip
 
 
 def blind_costs(level: _Level, motion: CameraMotion, lambda_f: float) -> tuple[float, float]:
