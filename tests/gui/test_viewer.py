@@ -183,8 +183,8 @@ def test_a_flood_of_records_never_keeps_the_viewer_busy_for_100_ms(make_napari_v
 
     def flood():
         for i in range(n):
-            if i % 100 == 0:
-                time.sleep(0.001)
+            if i % 100 == 0:  # 200 pauses: the flood lasts >= 0.8 s on any machine
+                time.sleep(0.004)
             yield Progress("demo", i + 1, n, f"record {i + 1}")
         return None
 
