@@ -431,6 +431,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             from .edges import extract_edge_profiles
 
             work_profiles = extract_edge_profiles(work_raw, blur_work, rng=rng)
+            if method == "xu+ep":
+                work_profiles = _trusted(work_profiles, DEFAULTS["min_profiles"])
         else:
             work_profiles = profiles.rescaled(work_scale) if work_scale != 1 else profiles
         info.n_profiles = len(work_profiles)
@@ -581,6 +583,19 @@ class _CoarseToFine:
                                else None, **at)
             self.finest = level
         return self.motion, self.latent, step
+
+
+#: Xu+Ep uses the automatic profiles whose calibrated confidence is at least this
+#: (:attr:`EdgeProfiles.confidence`), when enough of them remain: its edge-profile term
+#: pulls the whole alternation, and a false profile pulls it the wrong way.
+XU_EP_MIN_CONFIDENCE = 0.7
+
+
+def _trusted(profiles, need: int):
+    """The profiles of confidence >= :data:`XU_EP_MIN_CONFIDENCE`, if ``need`` remain."""
+    conf = profiles.confidence
+    trusted = np.isfinite(conf) & (conf >= XU_EP_MIN_CONFIDENCE)
+    return profiles.select(trusted) if trusted.sum() >= need else profiles
 
 
 def blind_costs(level: _Level, motion: CameraMotion, lambda_f: float) -> tuple[float, float]:
