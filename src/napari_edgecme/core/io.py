@@ -164,10 +164,12 @@ def write_json(path, data, indent=None) -> None:
         fh.write("\n")
 
 
-def read_json(path, what: str):
+def read_json(path, what: str, parse=None):
     """Parse the JSON file ``path``; any problem is one ``ValueError`` line naming ``what``.
 
     ``what`` names the kind of file in the messages ("motion file", "profile file").
+    ``parse`` (optional) builds the result from the parsed data (e.g. a ``from_dict``);
+    its ``ValueError`` comes back prefixed with the path.
     """
     import json
 
@@ -179,9 +181,15 @@ def read_json(path, what: str):
     except (OSError, UnicodeDecodeError) as err:
         raise ValueError(f"cannot read {what} {path}: {first_line(err)}") from None
     try:
-        return json.loads(text)
+        data = json.loads(text)
     except json.JSONDecodeError as err:
         raise ValueError(f"{what} {path} is not valid JSON: {err.msg} "
                          f"(line {err.lineno})") from None
     except (ValueError, RecursionError) as err:  # a number of > 4300 digits, deep nesting
         raise ValueError(f"{what} {path} is not valid JSON: {first_line(err)}") from None
+    if parse is None:
+        return data
+    try:
+        return parse(data)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None

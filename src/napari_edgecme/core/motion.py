@@ -414,11 +414,7 @@ class CameraMotion:
         """Read a motion file; any problem raises one ``ValueError`` line that names it."""
         from .io import read_json
 
-        data = read_json(path, "motion file")
-        try:
-            return cls.from_dict(data)
-        except ValueError as err:
-            raise ValueError(f"{path}: {err}") from None
+        return read_json(path, "motion file", cls.from_dict)
 
     # -- comparison ------------------------------------------------------------------------
     def __eq__(self, other) -> bool:

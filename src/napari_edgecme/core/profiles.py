@@ -434,11 +434,7 @@ class EdgeProfiles:
         """Read a profile file; any problem raises one ``ValueError`` line that names it."""
         from .io import read_json
 
-        data = read_json(path, "profile file")
-        try:
-            return cls.from_dict(data)
-        except ValueError as err:
-            raise ValueError(f"{path}: {err}") from None
+        return read_json(path, "profile file", cls.from_dict)
 
     # -- display ---------------------------------------------------------------------------
     def figure(self, indices=None, path=None, max_lines: int = 60):
