@@ -76,7 +76,7 @@ LEVIN_ANCHOR_CASES = tuple(f"im0{i}_ker0{k}" for i in range(1, 5) for k in (2, 5
 LEVIN_ANCHOR_BORDER = 24
 LEVIN_ANCHOR_UPSAMPLE = 10
 LEVIN_PAN_2016 = 30.47
-#: An estimate whose blur extent (px, :meth:`CameraMotion.blur_extent`) is below this
+#: An estimate whose blur extent (px, :meth:`CameraMotion.max_displacement`) is below this
 #: has collapsed to "no blur" (every case of these suites is blurred by more).
 COLLAPSE_EXTENT = 2.0
 #: Edge profiles whose derivative matches the true projection at least this well are
@@ -235,7 +235,7 @@ def _run_truth_case(case: dict, suite: str, workdir: Path, methods, n_iter, log)
         return out
 
     row = {**{k: v for k, v in case.items() if k not in ("dir", "file")},
-           "shape": list(blurred.shape), "true_extent": truth.blur_extent(),
+           "shape": list(blurred.shape), "true_extent": truth.max_displacement(),
            "blurred": scores(blurred), "runs": {}}
     if suite == "lai":
         row["profiles_true"] = _profile_measures(blurred, truth, case["max_blur"])
@@ -262,7 +262,7 @@ def _run_truth_case(case: dict, suite: str, workdir: Path, methods, n_iter, log)
             if key not in ("oracle", "centred"):
                 motion = CameraMotion.load(job["motion"])
                 entry["ncc"] = motion_psf_ncc(motion, truth)
-                entry["extent"] = motion.rescale(truth.image_shape).blur_extent()
+                entry["extent"] = motion.rescale(truth.image_shape).max_displacement()
                 entry["collapsed"] = bool(entry["extent"] < COLLAPSE_EXTENT
                                           or res.get("no_blur"))
         row["runs"][key] = entry
@@ -326,8 +326,8 @@ def _run_real_photo(photo: dict, workdir: Path, sheets: Path, methods, log) -> d
                  "stderr": res["stderr"][-3:]}
         if res["status"] == 0 and motion_path.exists():
             motion = CameraMotion.load(motion_path)
-            entry.update(poses=motion.n_poses, extent=motion.blur_extent(),
-                         collapsed=motion.blur_extent() < COLLAPSE_EXTENT)
+            entry.update(poses=motion.n_poses, extent=motion.max_displacement(),
+                         collapsed=motion.max_displacement() < COLLAPSE_EXTENT)
             images[method] = read_rgb(out)
         row["runs"][method] = entry
     profiles = _run_cli(["profiles", photo["input"], "-o",

@@ -87,7 +87,7 @@ _WEIGHT_FLOOR = 1.0 / 20.0  # drop weights below this fraction of the largest (W
 #: two sets), a higher mean PSF NCC and 30 % less CPU time.
 _FINEST_UPDATES = 3
 _MAX_ITER = 1000  # cap on n_iter (alternations per scale)
-#: An estimate whose blur extent (px of the working copy, :meth:`CameraMotion.blur_extent`)
+#: An estimate whose blur extent (px of the working copy, :meth:`CameraMotion.max_displacement`)
 #: is below this has collapsed to the no-blur solution.
 COLLAPSE_EXTENT = 2.0
 #: After a collapse the estimation restarts once with ``lambda_f`` times this.
@@ -462,7 +462,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         motion, latent, step = yield from run.iterate(step, total)
         # -- collapse to no blur: restart once from a wide motion, with a stronger L0
         # weight (the sharp-edged latent then has to be explained by the blur)
-        extent = motion.blur_extent()
+        extent = motion.max_displacement()
         if extent < COLLAPSE_EXTENT and not constant:
             info.restarts += 1
             total += sum(level_iters)
@@ -470,7 +470,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                            "restarting from a wider motion", n_scales=len(scales))
             again, again_latent, step = yield from run.iterate(
                 step, total, wide_start=True, lambda_f_factor=_RESTART_LAMBDA_F)
-            if again.blur_extent() > extent:
+            if again.max_displacement() > extent:
                 motion, latent = again, again_latent
         info.converged = True
         info.message += "completed all scales"
@@ -485,7 +485,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     if not stopped:
         yield Progress("estimate", step, total, "checking the estimate against no blur",
                        n_scales=len(scales))
-        extent = motion.blur_extent()
+        extent = motion.max_displacement()
         if constant:  # said above (Xu) or by the edge profiles (EpAlone, Xu+Ep)
             info.no_blur = True
             info.message += "; no blur found (the image is constant)"

@@ -168,16 +168,21 @@ class CameraMotion:
         """Displacements ``(dx, dy)`` of ``points`` (n, 2) ``(row, col)``: (n, n_poses, 2)."""
         return displacements(self.model, self.intrinsics, self.poses, _check_points(points))
 
-    def blur_extent(self, points=None) -> float:
-        """Largest displacement magnitude (px) from the centroid of the local PSF.
+    def max_displacement(self, points=None) -> float:
+        """Largest displacement (px) of any pose from the centroid of its local PSF.
 
-        Evaluated at ``points`` (n, 2) or, by default, over a 5x5 grid covering the image.
+        A radius: the estimator's collapse test (``estimate.COLLAPSE_EXTENT``) is stated in
+        it. Evaluated at ``points`` (n, 2) or, by default, over a 5x5 grid covering the image.
         """
         if points is None:
             points = _grid_points(self.image_shape, (5, 5))
         d = self.displacements(points)
         centre = np.einsum("npk,p->nk", d, self.weights)
         return float(np.max(np.hypot(*(d - centre[:, None]).transpose(2, 0, 1))))
+
+    def blur_extent(self, points=None) -> float:
+        """Blur extent (px) as reported to users; see :meth:`max_displacement`."""
+        return self.max_displacement(points)
 
     def psf_size(self, points=None) -> int:
         """The PSF side that holds this motion at ``points`` (default: over the whole image)."""
