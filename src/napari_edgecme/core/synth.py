@@ -38,9 +38,16 @@ SAMPLE_IMAGES = ("camera", "astronaut", "coffee", "text", "page", "chelsea", "ro
 
 
 def trajectory_extent(model: str, intrinsics: Intrinsics, poses) -> float:
-    """Blur extent (px) of a path: the largest side of a local PSF's bounding box.
+    """Blur extent (px) of a path of poses, as :meth:`CameraMotion.blur_extent` defines it.
 
-    Measured at the corners, edge midpoints and centre of the image.
+    The longest side of the bounding box of a local PSF's support (the distance between
+    the extreme displacements along ``x`` or ``y``; one pose gives 0), largest over the
+    image's corners, edge midpoints and centre -- 9 of the 25 points
+    :meth:`~napari_edgecme.core.motion.CameraMotion.blur_extent` measures at. Every pose
+    counts (a path has no weights). The box side is largest at a corner (exactly so for
+    ``translation`` and ``inplane``, whose displacements are affine in the point; to
+    within 1e-4 px for ``rotation``), so a path, as a motion, and its densified motion
+    (:func:`densify_path`) have ``blur_extent()`` equal to this number.
     """
     rows, cols = intrinsics.image_shape
     pts = np.array([[r, c] for r in (0, (rows - 1) / 2, rows - 1)
@@ -56,14 +63,18 @@ def random_trajectory(model: str, intrinsics: Intrinsics, extent: float, n_sampl
     """A smooth random hand-shake path through pose space.
 
     The path is a smoothed random walk with momentum (a few changes of direction),
-    scaled so that its blur extent (:func:`trajectory_extent`) is ``extent`` pixels.
+    scaled so that its blur extent (:func:`trajectory_extent`) is ``extent`` pixels: the
+    motion ``densify_path(path, ...)`` has ``blur_extent() == extent`` (to 1e-4 px at the
+    usual sizes; the scale is refined three times, not solved for, so a blur a third of
+    the image's side may come out up to 0.01 px short).
 
     Parameters
     ----------
     model : {"translation", "inplane", "rotation"}
     intrinsics : Intrinsics
     extent : float
-        Blur extent in pixels (largest PSF bounding-box side over the image).
+        Blur extent in pixels: the longest side of a local PSF's support (its bounding
+        box), largest over the image -- :meth:`CameraMotion.blur_extent`.
     n_samples : int
         Number of poses along the path.
     roll : float
@@ -363,7 +374,8 @@ def make_case(image, model: str = "rotation", extent: float = 15.0, noise: float
         Sharp gray image in [0, 1].
     model : {"translation", "inplane", "rotation"}
     extent : float
-        Blur extent in pixels (see :func:`trajectory_extent`).
+        Blur extent in pixels (:meth:`CameraMotion.blur_extent` of the true motion; see
+        :func:`trajectory_extent`).
     noise : float
         Gaussian noise sigma (fraction of the [0, 1] range).
     bits : int or None
