@@ -54,9 +54,13 @@ from pathlib import Path
 import numpy as np
 
 from . import _bench
-from . import cli as _cli
+from .cli._console import PROG, CLIError, _Console, oserror_message
+from .cli._deblur import deblur_image, estimate_summary
+from .cli._files import output_bits, read_input_image
+from .cli._options import deconvolution_params
 from .core import io as _io
 from .core._validation import first_line
+from .core.camera import MODELS
 from .core.progress import Progress
 
 __all__ = ["BatchResult", "Photo", "collect_photos", "deblur_many", "deblur_photo",
@@ -257,7 +261,7 @@ def deblur_photo(name: str, data: bytes, options: argparse.Namespace) -> dict:
         src = folder / Path(name).name
         src.write_bytes(data)
         stream = io.StringIO()  # the CLI's warnings about the input (alpha channel)
-        console = _cli._Console(quiet=True, stream=stream)
+        console = _Console(quiet=True, stream=stream)
 
         def own(text: str) -> str:  # messages name the photo, not the temporary copy
             return text.replace(str(src), name)
@@ -265,12 +269,12 @@ def deblur_photo(name: str, data: bytes, options: argparse.Namespace) -> dict:
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                image = _cli.read_input_image(src, console)
-                restored, result, max_blur, source, _ = _cli._deblur_image(
+                image = read_input_image(src, console)
+                restored, result, max_blur, source, _ = deblur_image(
                     options, console, image, src,
-                    _cli._deconv_params(options, options.deconvolution))
+                    deconvolution_params(options, options.deconvolution))
                 encoded = folder / ("restored" + Path(name).suffix)
-                _io.write_image(encoded, restored, bits=_cli.output_bits(image))
+                _io.write_image(encoded, restored, bits=output_bits(image))
                 result.motion.save(folder / "motion.json")
                 _io.write_image(folder / "before.png", _thumbnail(image))
                 _io.write_image(folder / "after.png", _thumbnail(restored))
@@ -281,22 +285,22 @@ def deblur_photo(name: str, data: bytes, options: argparse.Namespace) -> dict:
                 method=info.method,
                 blur_extent_px=round(float(result.motion.blur_extent()), 2),
                 profiles=info.n_profiles,
-                summary=own(_cli._estimate_summary(result, options.method, max_blur, source)),
+                summary=own(estimate_summary(result, options.method, max_blur, source)),
                 files={role: (folder / file).read_bytes() for role, file in (
                     ("output", encoded.name), ("before", "before.png"),
                     ("after", "after.png"), ("psf", "psf.png"), ("motion", "motion.json"))})
-            notes = [line.removeprefix(f"{_cli.PROG}: warning: ")
+            notes = [line.removeprefix(f"{PROG}: warning: ")
                      for line in stream.getvalue().splitlines()]
             notes += [first_line(w.message) for w in caught
                       if issubclass(w.category, UserWarning)]
             row["notes"] = [own(note) for note in dict.fromkeys(notes)]
             row["warnings"] = " | ".join(row["notes"])
-        except (_cli.CLIError, ValueError) as err:
+        except (CLIError, ValueError) as err:
             row["reason"] = own(first_line(err))
         except MemoryError:
             row["reason"] = "out of memory; try a smaller max_side for the estimation"
         except OSError as err:
-            row["reason"] = own(_cli._oserror(err))
+            row["reason"] = own(oserror_message(err))
         except Exception as err:  # a bug: the batch goes on, the report says what it was
             row["reason"] = f"internal error: {type(err).__name__}: {own(first_line(err))}"
     row["seconds"] = round(time.perf_counter() - t0, 2)
@@ -575,11 +579,11 @@ def _options(method, model, max_blur, focal_px, deconvolution, deconv_params, pa
     _deconv.check_deconvolution_parameters(deconvolution, dict(deconv_params or {}))
     options = argparse.Namespace(
         method=check_choice(method, "method", _estimate.METHODS),
-        model=check_choice(model, "model", _cli.MODELS), max_blur=max_blur,
+        model=check_choice(model, "model", MODELS), max_blur=max_blur,
         focal_px=focal_px, seed=int(seed), profiles=None, deconvolution=deconvolution,
         **{name: params.get(name) for name in ESTIMATION_PARAMS},
         **{name: (deconv_params or {}).get(name) for name in ("lam", "iterations", "nsr")})
-    _cli._deconv_params(options, deconvolution)
+    deconvolution_params(options, deconvolution)
     return options
 
 
@@ -621,7 +625,7 @@ def _submit_data(photo: Photo, run):
     try:
         data = photo.source.read_bytes()
     except OSError as err:
-        return {"photo": photo.name, "status": FAILED, "reason": _cli._oserror(err),
+        return {"photo": photo.name, "status": FAILED, "reason": oserror_message(err),
                 "files": {}}
     return run(data)
 

@@ -1,0 +1,131 @@
+"""The tool commands: profiles (detect edge profiles), psf (draw a motion), synth (shake
+an image)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..core import io as _io
+from ..core._validation import first_line
+from ..core.camera import Intrinsics
+from ..core.motion import CameraMotion
+from ._console import EXIT_OK, CLIError, _Console
+from ._files import (
+    _check_output,
+    _distinct,
+    _existing_input,
+    _writing,
+    output_bits,
+    read_input_image,
+)
+from ._options import _describe, _focal_px, _max_blur
+
+#: Default blur extent of ``synth`` (pixels).
+SYNTH_EXTENT = 15.0
+#: Default noise of ``synth`` (standard deviation, fraction of the [0, 1] range).
+SYNTH_NOISE = 0.01
+#: Poses along a synthetic trajectory (as :func:`~napari_edgecme.core.synth.make_case`).
+SYNTH_SAMPLES = 48
+
+
+def _figure_formats() -> set[str]:
+    """Suffixes matplotlib can save to, or raise CLIError when matplotlib is missing."""
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise CLIError("--plot needs matplotlib: pip install 'napari-edgecme[plot]'") from None
+    return {"." + s for s in FigureCanvasAgg(Figure()).get_supported_filetypes()}
+
+
+def cmd_profiles(args, console: _Console) -> int:
+    from ..core.edges import extract_edge_profiles
+
+    path = _existing_input(args.image, "image")
+    outputs = [("-o", _check_output(args.output, "-o"))]
+    if args.plot is not None:
+        _check_output(args.plot, "--plot")
+        formats = _figure_formats()
+        if args.plot.suffix.lower() not in formats:
+            suffix = repr(args.plot.suffix) if args.plot.suffix else "(no extension)"
+            raise CLIError(f"cannot write --plot {args.plot}: unsupported figure format "
+                           f"{suffix}; use one of " + ", ".join(sorted(formats)))
+        outputs.append(("--plot", args.plot))
+    _distinct([("IMAGE", path)], outputs)
+    image = read_input_image(path, console)
+    max_blur = _max_blur(args.max_blur, image.shape)
+    t0 = time.perf_counter()
+    profiles = extract_edge_profiles(image, max_blur, rng=args.seed)
+    seconds = time.perf_counter() - t0
+    with _writing(args.output) as (tmp,):  # the profiles first: a plot must not cost them
+        profiles.save(tmp)
+    if args.plot is not None:
+        try:
+            with _writing(args.plot) as (tmp,):
+                profiles.figure().savefig(tmp, dpi=100)
+        except Exception as err:
+            console.warn(f"could not draw --plot {args.plot}: {first_line(err)}; the profiles "
+                         f"were written to {args.output}")
+            outputs = outputs[:1]
+    if len(profiles) == 0:
+        console.warn(f"no usable edge profiles in {path}: {profiles.reason}")
+    wrote = ", ".join(str(p) for _, p in outputs)
+    console.info(f"{len(profiles)} edge profiles (max blur {max_blur:g} px, {seconds:.1f} s);"
+                 f" wrote {wrote}")
+    if len(profiles):
+        console.info(f"median confidence {np.median(profiles.confidence):.2f}; "
+                     + profiles.coverage_summary())
+    return EXIT_OK
+
+
+def cmd_psf(args, console: _Console) -> int:
+    motion_path = _existing_input(args.motion, "motion file")
+    _check_output(args.output, "-o", image=True)
+    _distinct([("MOTION", motion_path)], [("-o", args.output)])
+    motion = CameraMotion.load(motion_path)
+    field = motion.psf_field(grid=args.grid)
+    with _writing(args.output) as (tmp,):
+        _io.write_image(tmp, field)
+    rows, cols = motion.image_shape
+    console.info(f"PSF field of a {_describe(motion)} on a {args.grid[0]}x{args.grid[1]} grid "
+                 f"({rows}x{cols} px); wrote {args.output}")
+    return EXIT_OK
+
+
+def cmd_synth(args, console: _Console) -> int:
+    from ..core import synth
+
+    path = _existing_input(args.image, "image")
+    outputs = [("-o", _check_output(args.output, "-o", image=True)),
+               ("--save-motion", _check_output(args.save_motion, "--save-motion"))]
+    _distinct([("IMAGE", path)], outputs)
+    image = read_input_image(path, console)
+    from ..core._validation import as_float_image, as_rng
+
+    sharp = as_float_image(image, allow_rgb=True)
+    if args.extent >= min(sharp.shape[:2]) / 2:
+        raise CLIError(f"--extent {args.extent:g} is too large for a {sharp.shape[0]}x"
+                       f"{sharp.shape[1]} image; use less than {min(sharp.shape[:2]) / 2:g}")
+    focal_px, source = _focal_px(args, path, sharp.shape)
+    intrinsics = Intrinsics.from_image_shape(sharp.shape, focal_px=focal_px)
+    rng = as_rng(args.seed)
+    t0 = time.perf_counter()
+    path_poses = synth.random_trajectory(args.model, intrinsics, args.extent,
+                                         n_samples=SYNTH_SAMPLES, rng=rng)
+    truth = synth.densify_path(path_poses, args.model, intrinsics)
+    with console.stage() as callback:
+        blurred = synth.render_blur(sharp, truth, callback=callback)
+    if args.noise > 0:
+        blurred = synth.add_noise(blurred, args.noise, rng)
+    blurred = np.clip(blurred, 0, 1)
+    seconds = time.perf_counter() - t0
+    with _writing(*(p for _, p in outputs)) as (tmp_image, tmp_motion):
+        _io.write_image(tmp_image, blurred, bits=output_bits(image))
+        truth.save(tmp_motion)
+    console.info(f"shook {path} with a {args.extent:g} px {args.model} shake ({truth.n_poses} "
+                 f"poses, focal {intrinsics.focal_px:.0f} px from {source}, noise "
+                 f"{args.noise:g}, seed {args.seed}) in {seconds:.1f} s; wrote "
+                 f"{args.output}, {args.save_motion}")
+    return EXIT_OK
