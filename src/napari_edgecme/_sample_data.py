@@ -21,7 +21,7 @@ from .core.synth import SyntheticCase, edge_scene, make_case, sample_image
 
 __all__ = ["clock_motion", "edge_scene_shake", "synthetic_shake"]
 
-_MOTION_KEY = "edgecme_motion"  # as in napari_edgecme._widgets._common (no Qt import here)
+_MOTION_KEY = "edgecme_motion"  # as in napari_edgecme._widgets._layers (no Qt import here)
 
 
 def _layers(case: SyntheticCase, title: str, description: str) -> list[tuple]:

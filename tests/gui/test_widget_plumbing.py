@@ -12,13 +12,8 @@ from napari.layers import Image
 from qtpy.QtCore import QTimer
 from qtpy.QtWidgets import QApplication, QLabel, QProgressBar, QPushButton, QWidget
 
-from napari_edgecme._widgets._common import (
-    EngineRunner,
-    focal_from_layer,
-    resampled_kwargs,
-    snapshot_image,
-    time_left,
-)
+from napari_edgecme._widgets._layers import focal_from_layer, resampled_kwargs, snapshot_image
+from napari_edgecme._widgets._runner import EngineRunner, time_left
 from napari_edgecme.core.progress import Progress
 
 pytestmark = pytest.mark.gui

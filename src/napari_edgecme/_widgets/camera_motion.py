@@ -41,31 +41,28 @@ from qtpy.QtWidgets import (
 )
 from superqt import QCollapsible
 
+from ..core._validation import first_line
 from ..core.camera import DEFAULT_FOCAL_35MM, param_names
 from ..core.edges import EdgeProfiles
 from ..core.estimate import DEFAULTS, MotionEstimate, iter_estimate_motion
 from ..core.motion import CameraMotion
 from ..core.progress import Progress
-from ._common import (
+from ._dock import dock_layout
+from ._layers import (
     MOTION_KEY,
     PROFILES_KEY,
     SOURCE_KEY,
-    MaxBlurControl,
-    RunControls,
     default_focal_px,
-    deferred_draw,
-    dock_layout,
-    first_line,
     focal_from_layer,
     image_layers,
     image_shape,
-    plot_canvas,
     resampled_kwargs,
     snapshot_image,
-    style_axes,
-    theme_colours,
 )
+from ._max_blur import MaxBlurControl
+from ._plots import deferred_draw, plot_canvas, style_axes, theme_colours
 from ._psf_view import psf_glyphs
+from ._runner import RunControls
 
 __all__ = ["METHOD_CHOICES", "MODEL_CHOICES", "CameraMotionWidget", "psf_grid"]
 

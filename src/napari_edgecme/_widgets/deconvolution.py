@@ -41,20 +41,20 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
+from ..core._validation import first_line
 from ..core.deconv import DEFAULTS, iter_deconvolve
 from ..core.motion import CameraMotion
-from ._common import (
+from ._dock import dock_layout
+from ._layers import (
     MOTION_KEY,
     SOURCE_KEY,
-    RunControls,
-    dock_layout,
-    first_line,
     image_layers,
     image_shape,
     motion_from,
     snapshot_image,
     spatial_kwargs,
 )
+from ._runner import RunControls
 
 __all__ = ["METHOD_CHOICES", "DeconvolutionWidget", "MotionFit", "fit_motion"]
 

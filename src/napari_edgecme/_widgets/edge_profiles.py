@@ -45,23 +45,21 @@ from qtpy.QtWidgets import (
 )
 from superqt import QCollapsible
 
+from ..core._validation import first_line
 from ..core.edges import EdgeProfiles, extract_edge_profiles, profile_along_line
 from ..core.progress import Progress
-from ._common import (
+from ._dock import Connections, dock_layout
+from ._layers import (
     PROFILES_KEY,
     SOURCE_KEY,
-    Connections,
-    MaxBlurControl,
-    RunControls,
-    deferred_draw,
-    dock_layout,
-    first_line,
     image_layers,
     image_shape,
-    plot_canvas,
     snapshot_image,
     spatial_kwargs,
 )
+from ._max_blur import MaxBlurControl
+from ._plots import deferred_draw, plot_canvas
+from ._runner import RunControls
 
 __all__ = ["EdgeProfilesWidget", "iter_detect"]
 
