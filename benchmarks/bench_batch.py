@@ -38,7 +38,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from napari_edgecme import _bench
+from napari_edgecme import _bench, _worker
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "lai"
@@ -63,7 +63,7 @@ def worker(mode: str, inputs: Path, out: Path) -> dict:
         statuses.append(main(["batch", str(inputs), "-o", str(out)]))
     return {"mode": mode, "photos": len(photos), "seconds": time.perf_counter() - t0,
             "per_photo": per_photo, "statuses": statuses,
-            "peak_rss_mib": _bench._peak_rss_mib(), "code": _bench.__file__}
+            "peak_rss_mib": _worker.peak_rss_mib(), "code": _bench.__file__}
 
 
 def snapshot_code(folder: Path) -> dict:
@@ -73,7 +73,7 @@ def snapshot_code(folder: Path) -> dict:
 
     shutil.copytree(Path(napari_edgecme.__file__).parent, folder / "napari_edgecme",
                     ignore=shutil.ignore_patterns("__pycache__"))
-    env = _bench.worker_env()
+    env = _worker.worker_env()
     env["PYTHONPATH"] = os.pathsep.join([str(folder), env.get("PYTHONPATH", "")])
     return env
 

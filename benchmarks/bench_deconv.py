@@ -39,7 +39,7 @@ import time
 
 import numpy as np
 
-from napari_edgecme._bench import _peak_rss_mib
+from napari_edgecme._worker import peak_rss_mib
 from napari_edgecme.core import deconv
 from napari_edgecme.core.camera import Intrinsics
 from napari_edgecme.core.metrics import aligned_psnr, psnr
@@ -259,7 +259,7 @@ def measure(spec: dict) -> dict:
     out, wall, cpu = timed(deconv.deconvolve, blurred, motion, callback=callback,
                            **spec.get("params", {}))
     result = {"wall": wall, "cpu": cpu, "records": len(gaps), "max_gap": max(gaps),
-              "maxrss_gib": _peak_rss_mib() / 1024,
+              "maxrss_gib": peak_rss_mib() / 1024,
               "psf": deconv._psf_extent(motion), "stride": deconv._auto_stride(motion)}
     if spec["score"]:
         sharp = np.load(spec["stem"] + "-sharp.npy")

@@ -1,6 +1,6 @@
 """A 12-megapixel RGB photo end to end (issue 8): time, peak memory, progress.
 
-The photo is the one of ``edgecme bench``'s 12 MP speed case (``_bench._speed_inputs``:
+The photo is the one of ``edgecme bench``'s 12 MP speed case (``_bench._speed.speed_inputs``:
 scikit-image's astronaut resized to 4000x3000 RGB, a 31 px random camera rotation applied
 with the EFF operator, 1 % noise, 8 bits). It goes through ``deblur(...)`` -- Xu+Ep
 estimation of a ``rotation`` motion on an automatically downscaled copy, then
@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from napari_edgecme import _bench
+from napari_edgecme._bench._speed import speed_inputs
+from napari_edgecme._worker import peak_rss_mib
 
 #: Peak memory allowed by the issue (GiB).
 LIMIT_GIB = 6.0
@@ -40,7 +42,7 @@ def prepare(folder: Path) -> dict:
     """Write the 12 MP blurred photo (uint8 .npy) and its true motion into ``folder``."""
     config = _bench.make_config(quick=False, large=True)
     config.speed_size = 256  # the helper also makes the 800 px speed case: keep it small
-    paths = _bench._speed_inputs(config, folder)
+    paths = speed_inputs(config, folder)
     return {"image": paths["large"], "truth": paths["large_truth"]}
 
 
@@ -53,7 +55,7 @@ def worker(image_path: str, truth_path: str, method: str) -> dict:
 
     image = np.load(image_path)
     truth = CameraMotion.load(truth_path)
-    baseline = _bench._peak_rss_mib()
+    baseline = peak_rss_mib()
     records: dict[str, list[float]] = {}
     last = [time.perf_counter()]
     gaps: dict[str, float] = {}
@@ -78,7 +80,7 @@ def worker(image_path: str, truth_path: str, method: str) -> dict:
         "converged": est.info.converged, "seconds": seconds, "cpu_seconds": cpu,
         "estimate_seconds": estimate_s, "deconvolve_seconds": seconds - estimate_s,
         "records": {stage: len(times) for stage, times in records.items()},
-        "longest_gap_s": gaps, "peak_rss_mib": _bench._peak_rss_mib(),
+        "longest_gap_s": gaps, "peak_rss_mib": peak_rss_mib(),
         "baseline_rss_mib": baseline, "restored_dtype": str(restored.dtype),
         "restored_shape": list(restored.shape),
         "psf_ncc": motion_psf_ncc(est.motion, truth),

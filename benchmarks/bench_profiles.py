@@ -28,16 +28,16 @@ import numpy as np
 from napari_edgecme._suites import (
     CATEGORIES,
     FAITHFUL_NCC,
-    _float_image,
-    _lai_load,
     default_data_dir,
+    float_image,
     lai_cases,
+    lai_load,
+    profile_measures,
     real_photos,
 )
 from napari_edgecme.core.edges import extract_edge_profiles
 from napari_edgecme.core.estimate import default_max_blur
 from napari_edgecme.core.io import read_image
-from napari_edgecme.core.metrics import profile_fidelity
 
 #: the max blur of the issue's second count on the paper's photos (about their blur)
 REAL_WIDE_BLUR = 31.0
@@ -49,20 +49,8 @@ TARGET_CASES = 0.9
 
 
 def measure(image, truth, max_blur: float) -> dict:
-    """Count, per-profile fidelity, coverage and time of one extraction."""
-    t0 = time.perf_counter()
-    profiles = extract_edge_profiles(image, max_blur, rng=0)
-    out = {"max_blur": max_blur, "n": len(profiles), "seconds": time.perf_counter() - t0,
-           "rejected": profiles.stats.get("rejected", {})}
-    if len(profiles):
-        ncc, ratio = profile_fidelity(profiles, truth)
-        out.update(ncc=ncc.round(4).tolist(), ratio=np.round(ratio, 4).tolist(),
-                   quality=np.round(profiles.quality, 4).tolist(),
-                   measures={k: np.round(v, 4).tolist()
-                             for k, v in getattr(profiles, "measures", {}).items()})
-        out["confidence"] = np.round(profiles.confidence, 4).tolist()
-    out["coverage"] = profiles.coverage()
-    return out
+    """Count, per-profile fidelity, coverage and time of one extraction (as the suites)."""
+    return profile_measures(image, truth, max_blur, detail=True)
 
 
 def pooled(entries) -> dict:
@@ -204,7 +192,7 @@ def main(argv=None) -> int:
 
     rows = []
     for case in lai_cases(data, args.quick) if data else []:
-        blurred, _sharp, truth = _lai_load(case)
+        blurred, _sharp, truth = lai_load(case)
         rows.append({"name": case["name"], "category": case["category"],
                      "true": measure(blurred, truth, case["max_blur"]),
                      "default": measure(blurred, truth, default_max_blur(blurred.shape))})
@@ -212,7 +200,7 @@ def main(argv=None) -> int:
               file=sys.stderr, flush=True)
     photos = []
     for photo in real_photos(real) if real else []:
-        img = _float_image(read_image(photo["input"]))
+        img = float_image(read_image(photo["input"]))
         photos.append({"name": photo["name"],
                        "default": _count(img, default_max_blur(img.shape[:2])),
                        "wide": _count(img, REAL_WIDE_BLUR)})

@@ -26,6 +26,7 @@ import pytest
 pytest.importorskip("distributed")
 
 from napari_edgecme import batch
+from napari_edgecme.batch._run import Tally
 from napari_edgecme.cli import main
 from napari_edgecme.core import synth
 from napari_edgecme.core.io import read_image, write_image
@@ -335,7 +336,7 @@ def test_collect_photos_recursive_mirrors_subfolders_and_skips_the_output(photos
 
 
 def test_progress_record_counts_photos_and_time_left():
-    tally = batch._Tally(total=4, start=time.monotonic() - 10, finished=2, failed=1,
+    tally = Tally(total=4, start=time.monotonic() - 10, finished=2, failed=1,
                          running=2)
     record = tally.record()
     assert (record.stage, record.step, record.total) == ("batch", 2, 4)

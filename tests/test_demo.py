@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from napari_edgecme import _bench, _demo
+from napari_edgecme import _bench, _demo, _report, _worker
 from napari_edgecme.cli import main
 from napari_edgecme.core.io import read_image
 from napari_edgecme.core.motion import CameraMotion
@@ -148,7 +148,7 @@ def test_bench_smallest_configuration_writes_markdown_and_json(tmp_path, capsys)
 
 
 def test_bench_worker_reports_a_failure_as_data(tmp_path):
-    res = _bench.run_job({"kind": "deconvolve", "image": str(tmp_path / "missing.npy"),
+    res = _worker.run_job({"kind": "deconvolve", "image": str(tmp_path / "missing.npy"),
                           "motion": str(tmp_path / "missing.json")}, timeout=120)
     assert res["ok"] is False and "FileNotFoundError" in res["error"]
 
@@ -157,7 +157,7 @@ def test_bench_worker_reports_a_failure_as_data(tmp_path):
 def test_a_worker_reports_its_own_peak_memory_not_its_parents(tmp_path):
     np.save(tmp_path / "image.npy", np.zeros((64, 64), np.float32))
     ballast = np.ones(2**26)  # 512 MiB held by this (the parent) process
-    res = _bench.run_job({"kind": "baseline", "image": str(tmp_path / "image.npy")}, 120)
+    res = _worker.run_job({"kind": "baseline", "image": str(tmp_path / "image.npy")}, 120)
     assert res["ok"] and 30 < res["peak_rss_mib"] < 400, res
     del ballast
 
@@ -174,5 +174,5 @@ def test_quality_cases_cover_the_issue_grid():
 
 
 def test_markdown_table_alignment():
-    text = _bench.markdown_table(["a", "b"], [[1, "x"]], "lr")
+    text = _report.markdown_table(["a", "b"], [[1, "x"]], "lr")
     assert text.splitlines() == ["| a | b |", "|---|---:|", "| 1 | x |"]

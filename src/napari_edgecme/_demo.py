@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._report import METHOD_NAMES
 from .core import io as _io
 from .core._validation import first_line
 from .core.deconv import iter_deconvolve
@@ -54,7 +55,7 @@ EXTENT_FRACTION = 0.045
 MAX_BLUR_FACTOR = 1.35
 NOISE = 0.01
 #: Estimation methods shown, with their display names.
-METHODS = {"ep": "EpAlone", "xu+ep": "Xu+Ep"}
+METHODS = {key: METHOD_NAMES[key] for key in ("ep", "xu+ep")}
 #: PSF sample grid of the figures.
 PSF_GRID = (5, 5)
 
@@ -381,17 +382,13 @@ def _write_all(out: Path, case, truth, estimates, restored, profiles, figures, r
 
 
 def _machine() -> dict:
-    from ._bench import machine_info
+    from ._report import machine_info
 
     return machine_info()
 
 
-def _fmt(value, spec: str, empty: str = "") -> str:
-    return empty if value is None else format(value, spec)
-
-
 def _report(rows, config, names, have_mpl: bool, seconds: float, out: Path) -> str:
-    from ._bench import markdown_table
+    from ._report import fmt, markdown_table
 
     machine = _machine()
     table = []
@@ -399,10 +396,10 @@ def _report(rows, config, names, have_mpl: bool, seconds: float, out: Path) -> s
         if "failed" in r:
             table.append([r["name"], "failed (see the notes)", "", "", "", "", "", ""])
             continue
-        ncc = "1 (truth)" if r["key"] == "oracle" else _fmt(r.get("ncc"), ".3f")
-        table.append([r["name"], _fmt(r.get("psnr"), ".2f"), _fmt(r.get("gain"), "+.2f"),
-                      _fmt(r.get("ssim"), ".3f"), ncc, _fmt(r.get("estimate_s"), ".1f"),
-                      _fmt(r.get("deconvolve_s"), ".1f"), _fmt(r.get("poses"), "d")])
+        ncc = "1 (truth)" if r["key"] == "oracle" else fmt(r.get("ncc"), ".3f", "")
+        table.append([r["name"], fmt(r.get("psnr"), ".2f", ""), fmt(r.get("gain"), "+.2f", ""),
+                      fmt(r.get("ssim"), ".3f", ""), ncc, fmt(r.get("estimate_s"), ".1f", ""),
+                      fmt(r.get("deconvolve_s"), ".1f", ""), fmt(r.get("poses"), "d", "")])
     rows_md = markdown_table(["result", "aligned PSNR (dB)", "gain (dB)", "SSIM", "PSF NCC",
                               "estimate (s)", "deconvolve (s)", "poses"], table,
                              align="lrrrrrrr")
