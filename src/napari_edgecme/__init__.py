@@ -36,7 +36,7 @@ _EXPORTS = {
     "MotionEstimate": ".core.estimate",
     "estimate_motion": ".core.estimate",
     "iter_estimate_motion": ".core.estimate",
-    "deblur": ".core.estimate",
+    "deblur": ".core.deblur",
     "deblur_many": ".batch",
     "deconvolve": ".core.deconv",
     "iter_deconvolve": ".core.deconv",

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from napari_edgecme.core import synth
-from napari_edgecme.core.estimate import COLLAPSE_EXTENT, deblur, estimate_motion
+from napari_edgecme.core.deblur import deblur
+from napari_edgecme.core.estimate import COLLAPSE_EXTENT, estimate_motion
 
 
 @pytest.fixture(scope="module")

@@ -87,7 +87,7 @@ def deblur_many(paths, out_dir, method: str = "xu+ep", model: str = "rotation",
     out_dir : path-like
         Output folder, created if missing.
     method, model, max_blur, focal_px
-        As :func:`~napari_edgecme.core.estimate.deblur`, for every photo (``max_blur``:
+        As :func:`~napari_edgecme.core.deblur.deblur`, for every photo (``max_blur``:
         default 4% of each photo's longer side; ``focal_px``: default each photo's EXIF,
         else the 35 mm-equivalent default).
     deconvolution : {"hyperlaplacian", "rl", "wiener"}

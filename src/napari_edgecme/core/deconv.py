@@ -345,7 +345,7 @@ def check_deconvolution_parameters(method: str, params: dict) -> dict:
     """Validate the parameters of a deconvolution method; the one check of them.
 
     :func:`deconvolve` runs it on the keywords given other than their defaults;
-    :func:`~napari_edgecme.core.estimate.deblur` on its ``deconv_params`` before it
+    :func:`~napari_edgecme.core.deblur.deblur` on its ``deconv_params`` before it
     spends minutes estimating.
 
     Parameters

@@ -18,8 +18,8 @@ pyramid with ratio ``1/sqrt(2)``):
   ``lambda_Ip = 0`` is exactly Xu.
 
 ``iter_estimate_motion`` is the generator (progress records, cancellable);
-``estimate_motion`` drives it. ``deblur`` estimates and then deconvolves at full
-resolution.
+``estimate_motion`` drives it. :func:`~.deblur.deblur` estimates and then deconvolves at
+full resolution.
 """
 
 from __future__ import annotations
@@ -49,7 +49,6 @@ __all__ = [
     "EstimateInfo",
     "MotionEstimate",
     "ScaleRecord",
-    "deblur",
     "default_max_blur",
     "estimate_motion",
     "iter_estimate_motion",
@@ -735,33 +734,3 @@ def estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     """
     return drive(iter_estimate_motion(image, method, model, max_blur, focal_px, profiles,
                                       **params), callback)
-
-
-def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: float | None = None,
-           focal_px: float | None = None, *, deconvolution: str = "hyperlaplacian",
-           deconv_params: dict | None = None, callback=None, **params):
-    """Estimate the camera motion, then deconvolve the image with it at full resolution.
-
-    When no blur is found (``estimate.info.no_blur``, with a warning) the image is not
-    deconvolved: ``restored`` is the input as floating point, unchanged.
-
-    Returns
-    -------
-    restored : ndarray, float32 in [0, 1], shaped like ``image``
-    estimate : MotionEstimate
-    """
-    from .deconv import METHODS as DECONV_METHODS
-    from .deconv import check_deconvolution_parameters, deconvolve
-
-    # the deconvolution's own checks, before minutes of estimation
-    deconvolution = check_choice(deconvolution, "deconvolution", DECONV_METHODS)
-    if deconv_params is not None and not isinstance(deconv_params, dict):
-        raise ValueError(f"deconv_params must be a dict; got {type(deconv_params).__name__}")
-    check_deconvolution_parameters(deconvolution, dict(deconv_params or {}))
-    estimate = estimate_motion(image, method, model, max_blur, focal_px, callback=callback,
-                               **params)
-    if estimate.info.no_blur:  # nothing to undo: the photo comes back unchanged
-        return as_float_image(image, allow_rgb=True), estimate
-    restored = deconvolve(image, estimate.motion, deconvolution, callback=callback,
-                          **(deconv_params or {}))
-    return restored, estimate
