@@ -309,16 +309,83 @@ def test_estimate_uses_profiles_from_a_file(cd, capsys):
             or "falling back" in " ".join(err))
 
 
-def test_psf_draws_the_field_at_the_motion_image_size(cd, capsys):
+def test_psf_writes_a_labelled_figure_by_default(cd, capsys):
+    from PIL import Image
+
+    from napari_edgecme.cli._options import _describe
+
     status, _, err = run(["psf", "truth.json", "-o", "field.png", "--grid", "3x4"], capsys)
     assert status == 0, err
+    motion = CameraMotion.load("truth.json")
+    assert err[-1].startswith(f"edgecme: PSF field of a {_describe(motion)} on a 3x4 grid, "
+                              "each PSF drawn ")
+    assert "x enlarged, axes in image px (1000x" in err[-1]
+    assert err[-1].endswith("px figure); wrote field.png")
+    with Image.open("field.png") as png:
+        assert png.format == "PNG" and png.width == 1000
+        size = png.size
+    # the figure, not the raw field: larger than the 128x128 motion image, with a white
+    # margin (title, axis labels, scale bar) around the gray tiles of the PSFs
+    figure = read_image("field.png")
+    assert figure.shape[:2] == (size[1], size[0]) and figure.ndim == 3
+    assert (figure[:5, :, :3] == 255).all()  # white margin above the title
+    top = figure[:60, :, :3]
+    assert (top < 128).any()  # the title's dark text
+    bottom = figure[-30:, :, :3]
+    assert (bottom < 64).sum() > 40  # the scale bar (3 px thick, black)
+
+
+def test_psf_figure_default_grid_has_square_cells(cd, capsys):
+    from napari_edgecme.core.psf_view import square_grid
+
+    status, _, err = run(["psf", "truth.json", "-o", "field.png"], capsys)
+    assert status == 0, err
+    rows, cols = square_grid((128, 128))
+    assert f" on a {rows}x{cols} grid, " in err[-1]
+
+
+def test_psf_raw_writes_the_raw_field_exactly(cd, capsys):
+    status, _, err = run(["psf", "truth.json", "-o", "field.png", "--grid", "3x4", "--raw"],
+                         capsys)
+    assert status == 0, err
+    assert err[-1].endswith("on a 3x4 grid (128x128 px; raw: each PSF at its point, scaled "
+                            "to peak 1); wrote field.png")
     field = read_image("field.png")
     assert field.shape == (128, 128) and field.max() == 255
+    expected = CameraMotion.load("truth.json").psf_field(grid=(3, 4))
+    write_image("expected.png", expected)
+    assert np.array_equal(field, read_image("expected.png"))
     # 12 PSFs, one per grid cell: every cell holds some of the drawing
     for r in range(3):
         for c in range(4):
             cell = field[r * 128 // 3:(r + 1) * 128 // 3, c * 32:(c + 1) * 32]
             assert cell.max() > 0
+    # another format than PNG is the raw field too
+    status, _, err = run(["psf", "truth.json", "-o", "field.tif", "--grid", "3x4"], capsys)
+    assert status == 0, err
+    assert "raw: each PSF at its point" in err[-1]
+    assert np.array_equal(read_image("field.tif"), expected)
+
+
+def test_psf_without_matplotlib_warns_once_and_writes_the_raw_field(cd, capsys,
+                                                                    monkeypatch):
+    from napari_edgecme.core import psf_view
+
+    def no_matplotlib(*args, **kwargs):
+        raise ImportError("the PSF-field figure needs matplotlib (pip install matplotlib); "
+                          "without it, CameraMotion.psf_field(grid) gives the raw field")
+
+    monkeypatch.setattr(psf_view, "save_psf_field_figure", no_matplotlib)
+    status, _, err = run(["psf", "truth.json", "-o", "field.png", "--grid", "3x4"], capsys)
+    assert status == 0, err
+    warnings = [line for line in err if "matplotlib" in line]
+    assert len(warnings) == 1
+    assert warnings[0].endswith("; writing the raw PSF field instead")
+    assert "raw: each PSF at its point" in err[-1]
+    expected = CameraMotion.load("truth.json").psf_field(grid=(3, 4))
+    write_image("expected.png", expected)
+    assert np.array_equal(read_image("field.png"), read_image("expected.png"))
+    assert listing(cd) >= {"field.png"} and not [n for n in listing(cd) if "tmp" in n]
 
 
 # --------------------------------------------------------------------------------------
@@ -566,7 +633,7 @@ def _console_script() -> str:
 def test_console_script_runs_and_exits_2_on_bad_input(work):
     script = _console_script()
     assert script, "the edgecme console script is not installed"
-    res = subprocess.run([script, "psf", "truth.json", "-o", "field.png"], cwd=work,
+    res = subprocess.run([script, "psf", "truth.json", "-o", "field.png", "--raw"], cwd=work,
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert read_image(work / "field.png").shape == (128, 128)

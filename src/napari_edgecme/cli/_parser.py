@@ -240,13 +240,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seed of the candidate subsampling on large images (default 0)")
 
     p = command("psf", cmd_psf, "draw the PSF field of a motion file",
-                "Draw the local PSFs of a camera motion on a grid over its image, each "
-                "scaled to peak 1.")
+                "Draw the local PSFs of a camera motion on a grid over its image. A .png "
+                "output is a labelled figure: each PSF enlarged in its grid cell on a gray "
+                "tile (the enlargement stated), axes in image pixels, a title with the "
+                "model, poses and blur extent, and a scale bar. --raw (or another image "
+                "format) writes the raw field instead: an image the size of the motion's "
+                "image, each PSF at its point, scaled to peak 1.")
     p.add_argument("motion", type=Path, metavar="MOTION.json", help="motion file")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="FIELD.png",
-                   help="image to write, the size of the motion's image")
-    p.add_argument("--grid", type=_grid, default=(5, 5), metavar="ROWSxCOLS",
-                   help="PSF sample points (default: 5x5)")
+                   help="image to write: .png a labelled figure (needs matplotlib, else the "
+                        "raw field), other formats the raw field")
+    p.add_argument("--grid", type=_grid, default=None, metavar="ROWSxCOLS",
+                   help="PSF sample points (default: square cells, 5 on the image's short "
+                        "side)")
+    p.add_argument("--raw", action="store_true",
+                   help="write the raw PSF field, the size of the motion's image, instead "
+                        "of the figure")
 
     p = command("synth", cmd_synth, "shake a sharp image with a random camera motion",
                 "Blur a sharp image with a random hand-shake trajectory (rendered exactly, "
@@ -259,8 +268,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", choices=MODELS, default="rotation",
                    help="pose model of the shake (default: %(default)s)")
     p.add_argument("--extent", type=_number(), default=SYNTH_EXTENT, metavar="PX",
-                   help="blur extent in pixels: the largest local PSF's bounding-box side "
-                        "(default: %(default)g)")
+                   help="blur extent in pixels: the longest side of the local PSFs' "
+                        "support (bounding box), largest over the image (default: "
+                        "%(default)g)")
     p.add_argument("--noise", type=_number(allow_zero=True, maximum=1), default=SYNTH_NOISE,
                    metavar="S", help="Gaussian noise sigma on the [0, 1] scale "
                                      "(default: %(default)g)")

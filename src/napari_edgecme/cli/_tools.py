@@ -81,16 +81,34 @@ def cmd_profiles(args, console: _Console) -> int:
 
 
 def cmd_psf(args, console: _Console) -> int:
+    from ..core.psf_view import save_psf_field_figure, square_grid
+
     motion_path = _existing_input(args.motion, "motion file")
     _check_output(args.output, "-o", image=True)
     _distinct([("MOTION", motion_path)], [("-o", args.output)])
     motion = CameraMotion.load(motion_path)
-    field = motion.psf_field(grid=args.grid)
+    grid = square_grid(motion.image_shape) if args.grid is None else args.grid
+    rows, cols = motion.image_shape
+    if not args.raw and args.output.suffix.lower() == ".png":
+        try:
+            with _writing(args.output) as (tmp,):
+                figure = save_psf_field_figure(motion, tmp, grid=grid)
+        except ImportError as err:
+            console.warn(f"{first_line(err)}; writing the raw PSF field instead")
+        else:
+            width, height = figure.size
+            n = figure.glyphs.enlargement
+            drawn = f"drawn {n}x enlarged" if n > 1 else "drawn at its true size"
+            console.info(f"PSF field of a {_describe(motion)} on a {grid[0]}x{grid[1]} grid, "
+                         f"each PSF {drawn}, axes in image px ({width}x{height} px figure); "
+                         f"wrote {args.output}")
+            return EXIT_OK
+    field = motion.psf_field(grid=grid)
     with _writing(args.output) as (tmp,):
         _io.write_image(tmp, field)
-    rows, cols = motion.image_shape
-    console.info(f"PSF field of a {_describe(motion)} on a {args.grid[0]}x{args.grid[1]} grid "
-                 f"({rows}x{cols} px); wrote {args.output}")
+    console.info(f"PSF field of a {_describe(motion)} on a {grid[0]}x{grid[1]} grid "
+                 f"({rows}x{cols} px; raw: each PSF at its point, scaled to peak 1); "
+                 f"wrote {args.output}")
     return EXIT_OK
 
 
