@@ -122,6 +122,29 @@ def test_synth_writes_a_blurred_image_and_its_true_motion(cd, capsys):
     assert CameraMotion.load("t3.json") != truth
 
 
+def test_synth_and_psf_report_one_blur_extent(cd, capsys):
+    """Issue 15, item 10: the extent synth is asked for is the extent every command reports
+    (the longest side of the local PSFs' support), not a radius of it."""
+    import re
+
+    from napari_edgecme.cli._options import _describe
+
+    extent = re.compile(r"blur extent (\d+\.\d) px \(longest side of the PSFs")
+    status, _, err = run(["synth", "sharp.png", "-o", "b.png", "--save-motion", "t.json",
+                          "--model", "rotation", "--extent", "17", "--seed", "2"], capsys)
+    assert status == 0, err
+    (said,) = extent.findall(err[-1])
+    assert err[-1].startswith("edgecme: shook sharp.png with a rotation shake of blur extent ")
+    truth = CameraMotion.load("t.json")
+    assert abs(float(said) - 17) <= 0.1 and abs(truth.blur_extent() - 17) <= 0.1
+    assert truth.max_displacement() < 16  # the old radius would have read otherwise
+    assert extent.findall(_describe(truth)) == [said]
+    for argv in (["psf", "t.json", "-o", "f.png"], ["psf", "t.json", "-o", "r.png", "--raw"]):
+        status, _, err = run(argv, capsys)
+        assert status == 0, err
+        assert extent.findall(err[-1]) == [said]
+
+
 def test_synth_takes_the_focal_length_from_exif(cd, capsys):
     from PIL import Image
 

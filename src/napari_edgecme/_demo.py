@@ -135,8 +135,9 @@ def run_demo(out="edgecme-demo", *, size: int | None = None, seed: int = 0,
 
     extent = float(max(5, round(EXTENT_FRACTION * size)))
     max_blur = float(math.ceil(MAX_BLUR_FACTOR * extent))
-    log(f"shaking the bundled '{photo}' photo ({size} px) with a {extent:g} px camera "
-        f"{model} and {NOISE:.0%} noise (seed {seed})")
+    # the trajectory is scaled to exactly this CameraMotion.blur_extent
+    log(f"shaking the bundled '{photo}' photo ({size} px) with a {model} shake of blur "
+        f"extent {extent:.1f} px (longest side of the PSFs; {NOISE:.0%} noise, seed {seed})")
     t0 = time.perf_counter()
     case = make_case(sample_image(photo, size), model, extent, NOISE, rng=seed, name=photo)
     t_case = time.perf_counter() - t0
@@ -415,8 +416,9 @@ def _report(rows, config, names, have_mpl: bool, seconds: float, out: Path) -> s
         "",
         f"The bundled scikit-image photo `{c['photo']}`, resized to {c['shape'][0]}x"
         f"{c['shape'][1]} px, was shaken with a random hand-shake trajectory of camera "
-        f"{c['model']}s (model `{c['model']}`, blur extent {c['extent_px']:g} px, focal "
-        f"length {c['focal_px']:.0f} px: the PSF changes across the image), rendered "
+        f"{c['model']}s (model `{c['model']}`, blur extent {c['extent_px']:g} px -- the "
+        f"longest side of the local PSFs, over the frame -- focal length "
+        f"{c['focal_px']:.0f} px: the PSF changes across the image), rendered "
         f"exactly by dense warping, with {c['noise']:.0%} Gaussian noise and 8-bit "
         f"quantisation (seed {c['seed']}). The camera motion was then estimated from the "
         "blurred image alone -- the estimators were told only `max_blur` = "

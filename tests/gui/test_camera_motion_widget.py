@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 from types import SimpleNamespace
 
@@ -100,6 +101,10 @@ def test_a_run_adds_an_aligned_psf_field_and_latent_carrying_the_motion(setup, w
     assert s.widget.save_button.isEnabled()
     assert_same_motion(CameraMotion.load(s.widget.save_motion(tmp_path / "m.json")), motion)
     assert f"{motion.n_poses} poses" in s.widget.status.text()
+    # one blur extent (issue 15, item 10): the number shown is CameraMotion.blur_extent
+    (shown,) = re.findall(r"blur extent (\d+\.\d) px \(longest side of the PSFs\)",
+                          s.widget.status.text())
+    assert shown == f"{motion.blur_extent():.1f}"
 
 
 def test_the_latent_preview_updates_while_xu_refines(setup, wait_for_run):

@@ -221,6 +221,9 @@ def test_no_motion_is_said_under_the_motion_choice_not_only_in_a_toast(qtbot, vi
                            metadata={"edgecme_motion": photo_case.motion.to_dict()})
     widget.reset_choices()
     assert widget.motion_hint.text().startswith("inplane motion, ")
+    motion = photo_case.motion
+    assert (f"inplane motion, {motion.n_poses} poses, blur extent {motion.blur_extent():.1f}"
+            " px (longest side of the PSFs)") in widget.motion_hint.text()
 
 
 def test_cancel_mid_run_stops_quickly_and_leaves_no_layer(qtbot, setup):

@@ -13,7 +13,7 @@ import numpy as np
 
 from .._report import METHOD_NAMES
 from .._worker import run_job, worker_env
-from ._data import LEVIN_ANCHOR_BORDER, LEVIN_ANCHOR_UPSAMPLE, lai_load, levin_load
+from ._data import LEVIN_ANCHOR_BORDER, LEVIN_ANCHOR_UPSAMPLE, case_gamma, lai_load, levin_load
 
 __all__ = ["COLLAPSE_EXTENT", "FAITHFUL_NCC", "METHODS", "REFERENCES", "TIMEOUT", "method_label",
            "profile_measures", "run_real_photo", "run_truth_case"]
@@ -22,8 +22,9 @@ __all__ = ["COLLAPSE_EXTENT", "FAITHFUL_NCC", "METHODS", "REFERENCES", "TIMEOUT"
 METHODS = METHOD_NAMES
 #: The two restorations with the true motion, as labelled in the tables.
 REFERENCES = {"oracle": "oracle", "centred": "truth at its centroid pose"}
-#: An estimate whose blur extent (px, :meth:`CameraMotion.max_displacement`) is below this
-#: has collapsed to "no blur" (every case of these suites is blurred by more).
+#: An estimate whose largest displacement from its PSF centroid (px, a radius:
+#: :meth:`CameraMotion.max_displacement`, not the blur extent shown) is below this has
+#: collapsed to "no blur" (every case of these suites is blurred by more).
 COLLAPSE_EXTENT = 2.0
 #: Edge profiles whose derivative matches the true projection at least this well are
 #: counted as faithful (the edge-profile issue's measure).
@@ -66,15 +67,22 @@ def profile_measures(blurred, truth, max_blur: float, detail: bool = False) -> d
     return out
 
 
-def run_truth_case(case: dict, suite: str, workdir: Path, methods, n_iter, log) -> dict:
-    """Estimate with every method, deconvolve, and score one case with ground truth."""
+def run_truth_case(case: dict, suite: str, workdir: Path, methods, n_iter, log,
+                   gamma="linear") -> dict:
+    """Estimate with every method, deconvolve, and score one case with ground truth.
+
+    ``gamma`` (:func:`._data.case_gamma`): the estimates and deconvolutions see the
+    blurred image in linear light and their results are re-encoded before scoring.
+    """
     from ..core.estimate import default_max_blur
     from ..core.metrics import aligned_scores, motion_psf_ncc
     from ..core.motion import CameraMotion
 
     blurred, sharp, truth = (lai_load if suite == "lai" else levin_load)(case)
+    curve, gamma_reason = case_gamma(case, gamma)
+    linear = blurred if curve.is_linear else curve.decode(blurred)
     stem = workdir / case["name"]
-    np.save(f"{stem}-blurred.npy", blurred)
+    np.save(f"{stem}-blurred.npy", linear)
     truth.save(f"{stem}-truth.json")
     rotation = suite == "lai"
     if suite == "levin":  # told the kernel's support, as the other methods of Levin's table
@@ -90,11 +98,12 @@ def run_truth_case(case: dict, suite: str, workdir: Path, methods, n_iter, log) 
         return out
 
     row = {**{k: v for k, v in case.items() if k not in ("dir", "file")},
-           "shape": list(blurred.shape), "true_extent": truth.max_displacement(),
-           "blurred": scores(blurred), "runs": {}}
+           "shape": list(blurred.shape), "true_extent": truth.blur_extent(),
+           "blurred": scores(blurred), "runs": {}, "gamma": curve.name,
+           "gamma_reason": gamma_reason}
     if suite == "lai":
-        row["profiles_true"] = profile_measures(blurred, truth, case["max_blur"])
-        row["profiles_default"] = profile_measures(blurred, truth,
+        row["profiles_true"] = profile_measures(linear, truth, case["max_blur"])
+        row["profiles_default"] = profile_measures(linear, truth,
                                                     default_max_blur(blurred.shape))
     jobs = {m: {"kind": "estimate", "method": m, "model": case["model"],
                 "max_blur": case["max_blur"], "focal_px": focal, "n_iter": n_iter,
@@ -112,13 +121,15 @@ def run_truth_case(case: dict, suite: str, workdir: Path, methods, n_iter, log) 
                                      "message", "warnings", "method_run", "no_blur")
                  if res.get(k) is not None}
         if res.get("ok"):
-            entry.update(scores(np.load(job["restored"])))
+            restored = np.load(job["restored"])
+            entry.update(scores(restored if curve.is_linear else curve.encode(restored)))
             entry["gain"] = entry["psnr"] - row["blurred"]["psnr"]
             if key not in ("oracle", "centred"):
                 motion = CameraMotion.load(job["motion"])
                 entry["ncc"] = motion_psf_ncc(motion, truth)
-                entry["extent"] = motion.rescale(truth.image_shape).max_displacement()
-                entry["collapsed"] = bool(entry["extent"] < COLLAPSE_EXTENT
+                scaled = motion.rescale(truth.image_shape)
+                entry["extent"] = scaled.blur_extent()  # shown as "blur extent (px)"
+                entry["collapsed"] = bool(scaled.max_displacement() < COLLAPSE_EXTENT
                                           or res.get("no_blur"))
         row["runs"][key] = entry
     oracle_gain = row["runs"].get("oracle", {}).get("gain")
@@ -181,7 +192,7 @@ def run_real_photo(photo: dict, workdir: Path, sheets: Path, methods, log) -> di
                  "stderr": res["stderr"][-3:]}
         if res["status"] == 0 and motion_path.exists():
             motion = CameraMotion.load(motion_path)
-            entry.update(poses=motion.n_poses, extent=motion.max_displacement(),
+            entry.update(poses=motion.n_poses, extent=motion.blur_extent(),
                          collapsed=motion.max_displacement() < COLLAPSE_EXTENT)
             images[method] = read_rgb(out)
         row["runs"][method] = entry

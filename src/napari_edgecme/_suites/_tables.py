@@ -146,9 +146,11 @@ def truth_markdown(result: dict) -> str:
                               *(f"{METHODS[k]} collapsed" for k in methods)], table,
                              "l" + "r" * (1 + len(keys) + 2 * len(methods))), "",
               f"PSF NCC: centroid-aligned local PSFs of the estimate against the truth on a "
-              f"4x4 grid (1 = the same shapes). Collapsed: the estimate's blur extent is "
-              f"under {COLLAPSE_EXTENT:g} px (the no-blur solution) or the estimator said "
-              "it found no blur.", ""]
+              f"4x4 grid (1 = the same shapes). Collapsed: no pose of the estimate is "
+              f"{COLLAPSE_EXTENT:g} px or more from its local PSF's centroid "
+              "(`CameraMotion.max_displacement`: the no-blur solution) or the estimator "
+              "said it found no blur. Blur extent: the longest side of the local PSFs' "
+              "support, largest over a 5x5 grid (`CameraMotion.blur_extent`).", ""]
     if suite == "levin":
         anchor = [r for r in rows if r.get("anchor")]
         prot = [["blurred",
@@ -254,7 +256,8 @@ def real_markdown(result: dict) -> str:
     lines += [markdown_table(["photo", "edge profiles (default max blur)",
                               *(f"{METHODS[m]}: blur, poses, time" for m in methods),
                               "warnings", "sheet"], table, "lr" + "l" * (len(methods) + 2)), "",
-              "Blur extent: largest displacement from the local PSF's centroid over a 5x5 grid "
-              "(`CameraMotion.blur_extent`). Times are the whole command (reading, "
-              "estimation, deconvolution, writing).", ""]
+              "Blur extent: the longest side of the local PSFs' support (bounding box), "
+              "largest over a 5x5 grid (`CameraMotion.blur_extent`); **no blur**: no pose "
+              f"{COLLAPSE_EXTENT:g} px or more from its PSF's centroid. Times are the whole "
+              "command (reading, estimation, deconvolution, writing).", ""]
     return "\n".join(lines)

@@ -394,7 +394,8 @@ class CameraMotionWidget(QWidget):
         if info.no_blur:
             return (f"no blur found ({info.seconds:.1f} s): the motion is the identity. If the "
                     "photo is blurred, try a larger max blur or another model")
-        text = (f"{motion.n_poses} poses, blur up to {motion.blur_extent():.1f} px "
+        text = (f"{motion.n_poses} poses, blur extent {motion.blur_extent():.1f} px (longest "
+                f"side of the PSFs) "
                 f"({info.seconds:.1f} s); PSF field: each PSF drawn "
                 f"{glyphs.enlargement}x its size")
         if info.message.startswith("fell back"):

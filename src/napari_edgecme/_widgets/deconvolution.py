@@ -360,7 +360,8 @@ class DeconvolutionWidget(QWidget):
             self.motion_hint.setText(f"Does not fit: {first_line(err)}")
             return
         m = fit.motion
-        text = f"{m.model} motion, {m.n_poses} poses, blur up to {m.blur_extent():.1f} px"
+        text = (f"{m.model} motion, {m.n_poses} poses, blur extent {m.blur_extent():.1f} px "
+                "(longest side of the PSFs)")
         if fit.note:
             text += f"; {'check: ' if fit.guess else ''}{fit.note}"
         self.motion_hint.setText(text)

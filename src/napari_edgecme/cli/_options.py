@@ -38,8 +38,9 @@ def _max_blur(value: float | None, shape) -> float:
 
 
 def _describe(motion: CameraMotion) -> str:
+    """What every command says of a motion (the blur extent: :meth:`CameraMotion.blur_extent`)."""
     return (f"{motion.model} motion, {motion.n_poses} poses, blur extent "
-            f"{motion.blur_extent():.1f} px")
+            f"{motion.blur_extent():.1f} px (longest side of the PSFs)")
 
 
 def _estimation_params(args) -> dict:

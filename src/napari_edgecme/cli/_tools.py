@@ -142,7 +142,8 @@ def cmd_synth(args, console: _Console) -> int:
     with _writing(*(p for _, p in outputs)) as (tmp_image, tmp_motion):
         _io.write_image(tmp_image, blurred, bits=output_bits(image))
         truth.save(tmp_motion)
-    console.info(f"shook {path} with a {args.extent:g} px {args.model} shake ({truth.n_poses} "
+    console.info(f"shook {path} with a {args.model} shake of blur extent "
+                 f"{truth.blur_extent():.1f} px (longest side of the PSFs; {truth.n_poses} "
                  f"poses, focal {intrinsics.focal_px:.0f} px from {source}, noise "
                  f"{args.noise:g}, seed {args.seed}) in {seconds:.1f} s; wrote "
                  f"{args.output}, {args.save_motion}")
