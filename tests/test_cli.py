@@ -245,6 +245,57 @@ def test_deconvolve_keeps_16_bit_and_rgb(cd, capsys):
     assert restored.shape == (128, 128, 3) and restored.dtype == np.uint8
 
 
+def test_lam_is_passed_as_lambda_f_so_our_own_cli_raises_no_deprecation(cd, capsys):
+    import argparse
+    import warnings
+
+    from napari_edgecme.cli._options import deconvolution_params
+
+    args = argparse.Namespace(lam=3000.0, iterations=None, nsr=None)
+    assert deconvolution_params(args, "hyperlaplacian") == {"lambda_f": 2.0 / 3000.0}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        status, _, err = run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
+                              "lam.png", "--lam", "1500"], capsys)
+        assert status == 0, err
+        status, _, err = run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
+                              "default.png"], capsys)
+        assert status == 0, err
+    # --lam 1500 is the default data weight (lambda_f = 2 / 1500): the same restoration
+    assert Path("lam.png").read_bytes() == Path("default.png").read_bytes()
+
+
+def test_batch_lam_reaches_each_photos_deconvolution_as_lambda_f():
+    import warnings
+
+    from napari_edgecme.batch._run import batch_options
+    from napari_edgecme.cli import build_parser
+    from napari_edgecme.cli._options import deconvolution_params
+
+    args = build_parser().parse_args(["batch", "x.png", "-o", "out", "--lam", "3000"])
+    handed = deconvolution_params(args, "hyperlaplacian")
+    assert handed == {"lam": 3000.0}  # deblur_many's documented deconv_params key
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # deblur_many's check of 'lam'
+        options = batch_options("xu", "inplane", None, None, "hyperlaplacian", handed, {})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        assert deconvolution_params(options, "hyperlaplacian") == {"lambda_f": 2.0 / 3000.0}
+
+
+@pytest.mark.parametrize("command", ["estimate", "deblur", "batch", "deconvolve"])
+def test_gamma_is_an_option_of_every_command_that_reads_a_photo(command):
+    from napari_edgecme.cli import build_parser
+
+    parser = build_parser()
+    required = {"estimate": ["x.png", "-o", "m.json"], "deblur": ["x.png", "-o", "o.png"],
+                "batch": ["x.png", "-o", "out"],
+                "deconvolve": ["x.png", "--motion", "m.json", "-o", "o.png"]}[command]
+    assert parser.parse_args([command, *required]).gamma == "auto"
+    for value in ("linear", "srgb", "2.2"):
+        assert parser.parse_args([command, *required, "--gamma", value]).gamma == value
+
+
 def test_deconvolve_names_the_deconvolution_as_deblur_does_and_keeps_the_old_name(cd, capsys):
     """One name for one thing: '--method' is the estimator in 'deblur', so the
     deconvolution is '--deconvolution' in both; the old spelling works for one release."""

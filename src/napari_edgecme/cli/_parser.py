@@ -110,13 +110,24 @@ def _add_deconvolution(parser) -> None:
     d = _deconv.DEFAULTS
     group = parser.add_argument_group("deconvolution parameters")
     group.add_argument("--lam", type=_number(), metavar="L",
-                       help=f"hyperlaplacian: data weight (default "
-                            f"{d['hyperlaplacian']['lam']:g}; higher for cleaner photos, "
-                            "lower for noisier ones)")
+                       help=f"hyperlaplacian: data weight, 2 / lambda_f of the engine "
+                            f"(default {d['hyperlaplacian']['lam']:g}; higher for cleaner "
+                            "photos, lower for noisier ones)")
     group.add_argument("--iterations", type=_number(int), metavar="N",
                        help=f"rl: Richardson-Lucy iterations (default {d['rl']['iterations']})")
     group.add_argument("--nsr", type=_number(), metavar="R",
                        help=f"wiener: noise-to-signal ratio (default {d['wiener']['nsr']:g})")
+
+
+def _add_gamma(parser) -> None:
+    # read by cli/_deblur.py and batch/ (args.gamma)
+    parser.add_argument("--gamma", dest="gamma", type=str, default="auto",
+                        metavar="{auto,linear,srgb,VALUE}",
+                        help="transfer curve of the input: auto (decide from the file: 8-bit "
+                             "JPEG/PNG -> srgb; 16-bit/float TIFF -> linear), linear, srgb, "
+                             "or a power-law exponent such as 2.2; estimation and "
+                             "deconvolution run in linear light and the output is re-encoded "
+                             "as the input was")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -167,6 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the estimated motion")
     p.add_argument("--deconvolution", choices=_deconv.METHODS, default="hyperlaplacian",
                    help="non-blind deconvolution method (default: %(default)s)")
+    _add_gamma(p)
     _add_estimation(p)
     _add_deconvolution(p)
 
@@ -198,6 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run on this existing Dask cluster instead of a local one")
     p.add_argument("--deconvolution", choices=_deconv.METHODS, default="hyperlaplacian",
                    help="non-blind deconvolution method (default: %(default)s)")
+    _add_gamma(p)
     _add_estimation(p, profiles=False)
     _add_deconvolution(p)
 
@@ -207,6 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("image", type=Path, metavar="IMAGE", help="blurred photo")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="MOTION.json",
                    help="motion file to write")
+    _add_gamma(p)
     _add_estimation(p)
 
     p = command("deconvolve", cmd_deconvolve, "deconvolve with a known camera motion",
@@ -223,6 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", dest="old_method", choices=_deconv.METHODS, default=None,
                    help="the old name of --deconvolution in this command (it means the "
                         "estimator in 'estimate' and 'deblur'); removed in the next release")
+    _add_gamma(p)
     _add_deconvolution(p)
 
     p = command("profiles", cmd_profiles, "detect and save edge profiles",
