@@ -1,6 +1,7 @@
 """Fixtures of the napari widget tests.
 
-Two kinds of test live here (see ../../../shared/TESTING.md):
+Two kinds of test live here (markers declared in pyproject.toml; ``-m "not viewer"``
+runs only the first kind, with ``QT_QPA_PLATFORM=offscreen`` and no X display):
 
 * ``@pytest.mark.gui``: widgets built against ``napari.components.ViewerModel`` (no GL
   canvas), driven with pytest-qt on the offscreen platform;

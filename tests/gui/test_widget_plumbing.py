@@ -44,7 +44,7 @@ def test_an_unexpected_error_is_one_notification_and_the_ui_recovers(ui, wait_fo
         raise RuntimeError("boom")  # superqt would take this for a deleted Qt object
 
     results = []
-    with caplog.at_level(logging.ERROR, logger="napari_edgecme._widgets._common"):
+    with caplog.at_level(logging.ERROR, logger="napari_edgecme._widgets._runner"):
         ui.runner.start(broken(), on_result=results.append)
         wait_for_run(ui)
     assert ui.runner.outcome == "failed" and results == []
