@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from napari_edgecme.core import synth
+from napari_edgecme.core.deblur import deblur
 from napari_edgecme.core.estimate import (
     MotionEstimate,
-    deblur,
     estimate_motion,
     iter_estimate_motion,
 )
