@@ -1,4 +1,5 @@
-"""``edgecme bench --suite {lai,levin,real}``: benchmarks on real camera shake and real captures.
+"""``edgecme bench --suite {lai,lai-srgb,levin,real}``: benchmarks on real camera shake and real
+captures.
 
 The synthetic bench (:mod:`.._bench`) blurs photos with the project's own model of a shake;
 these suites measure the estimators on data the project did not make:
@@ -16,6 +17,13 @@ these suites measure the estimators on data the project did not make:
     profiles at the true and at the default max blur
     (:func:`~.core.metrics.profile_fidelity`), the collapse indicator, time and peak
     memory.
+``lai-srgb``
+    The ``lai`` cases rendered in the physically right order (:func:`._data.lai_srgb_case`):
+    the sharp photo linearised, blurred in linear light with the true motion, encoded to
+    sRGB, noise as ``lai``'s, 8 bits; scored against the sRGB ``sharp.png`` with ``lai``'s
+    protocol. Rendered once into a cache folder (``cache=``, default
+    :func:`._data.default_cache_dir`). Run it with ``gamma="srgb"`` (or ``"auto"``) against
+    ``gamma="linear"`` to measure estimating and deconvolving in linear light.
 ``levin``
     The 32 real captures of Levin et al. (CVPR 2009; ``../shared/data/levin``), uniform
     blur, estimated with the ``translation`` model. Same columns, and the figures under the
@@ -27,6 +35,12 @@ these suites measure the estimators on data the project did not make:
     default method Xu+Ep and ``--method ep``, default options otherwise), and a
     side-by-side sheet is drawn per photo: input | EpAlone | Xu+Ep | the paper's EpAlone |
     the paper's Xu+Ep, with the same crops at 1:1 below.
+
+``gamma`` (``"linear"`` by default: the values as they are): with ``"srgb"``, a power-law
+exponent or ``"auto"`` (decided from each case's file, as ``edgecme deblur --gamma auto``:
+the 8-bit PNGs of ``lai`` and ``lai-srgb`` -> srgb, ``levin``'s ``.mat`` floats -> linear),
+every estimate and deconvolution is given the blurred image in linear light and its result
+is re-encoded before it is scored.
 
 Every estimate runs in a fresh process (:func:`._worker.run_job`), so its peak memory is
 its own; ``jobs`` cases run at once (times are then those of a shared machine). Results go
@@ -54,10 +68,12 @@ from ._cases import FAITHFUL_NCC, METHODS, profile_measures, run_real_photo, run
 from ._data import (
     CATEGORIES,
     SUITES,
+    default_cache_dir,
     default_data_dir,
     float_image,
     lai_cases,
     lai_load,
+    lai_srgb_case,
     levin_cases,
     levin_motion,
     real_photos,
@@ -71,12 +87,13 @@ __all__ = ["CATEGORIES", "FAITHFUL_NCC", "SUITES", "default_data_dir", "float_im
 
 def run_suite(suite: str, out="edgecme-bench", *, data=None, quick: bool = False,
               jobs: int = 1, methods=tuple(METHODS), n_iter: int | None = None,
-              cases: int | None = None, log=None) -> list[Path]:
+              cases: int | None = None, log=None, gamma="linear",
+              cache=None) -> list[Path]:
     """Run one suite and write its report (Markdown + JSON) into ``out``.
 
     Parameters
     ----------
-    suite : {"lai", "levin", "real"}
+    suite : {"lai", "lai-srgb", "levin", "real"}
     out : path-like
         Output folder, created if missing (its parent must exist).
     data : path-like, optional
@@ -91,6 +108,12 @@ def run_suite(suite: str, out="edgecme-bench", *, data=None, quick: bool = False
         Overrides (alternations per scale; the first ``cases`` cases only).
     log : callable, optional
         Called with one line per finished case.
+    gamma : {"linear", "srgb", "auto"} or float
+        The transfer curve the ground-truth suites are run with (see the module notes;
+        not used by ``real``, whose command lines decide for themselves).
+    cache : path-like, optional
+        ``lai-srgb``: the folder of its rendered cases (default
+        :func:`._data.default_cache_dir`).
 
     Returns
     -------
@@ -113,6 +136,9 @@ def run_suite(suite: str, out="edgecme-bench", *, data=None, quick: bool = False
     if not out.exists() and not out.parent.is_dir():
         raise ValueError(f"cannot create the benchmark folder {out}: its parent folder "
                          f"{out.parent} does not exist")
+    from ..core.photometry import parse_gamma
+
+    parse_gamma(gamma)  # a bad value fails before any case runs
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown method(s) {sorted(unknown)}; use {', '.join(METHODS)}")
@@ -141,24 +167,40 @@ def run_suite(suite: str, out="edgecme-bench", *, data=None, quick: bool = False
                       "data": str(data)}
             render = real_markdown
         else:
-            found = (lai_cases if suite == "lai" else levin_cases)(data, quick)[:cases]
+            lai = suite in ("lai", "lai-srgb")
+            found = (lai_cases if lai else levin_cases)(data, quick)[:cases]
             if not found:
                 raise ValueError(f"no cases in {data}")
+            if suite == "lai-srgb":
+                cache = Path(cache) if cache is not None else default_cache_dir()
+                cache.mkdir(parents=True, exist_ok=True)
+                with ThreadPoolExecutor(jobs) as pool:
+                    found = list(pool.map(lambda c: lai_srgb_case(c, cache), found))
             with ThreadPoolExecutor(jobs) as pool:
-                rows = list(pool.map(lambda c: run_truth_case(c, suite, workdir, methods,
-                                                               n_iter, log), found))
+                rows = list(pool.map(lambda c: run_truth_case(
+                    c, "lai" if lai else suite, workdir, methods, n_iter, log, gamma), found))
             protocol = (
                 "Aligned PSNR/SSIM: after the best global sub-pixel shift and in-plane "
                 "rotation (up to 2 degrees), 5% border crop; each estimator told the case's "
                 "max blur and the true focal length; model `rotation`; every estimate "
                 "followed by the same hyper-Laplacian deconvolution; oracle = that "
-                "deconvolution with the true motion." if suite == "lai" else
+                "deconvolution with the true motion." if lai else
                 "Aligned PSNR/SSIM: after the best global sub-pixel shift and in-plane "
                 "rotation, 5% border crop; model `translation`; each estimator told the "
                 "kernel's size as its max blur; the same hyper-Laplacian deconvolution "
                 "after every estimate; oracle = that deconvolution with the kernel `f` "
                 "of the capture (as a correlation kernel).")
+            if suite == "lai-srgb":
+                protocol = ("Cases: each lai case re-rendered in linear light (sharp.png "
+                            "linearised, blurred with truth.json, sRGB-encoded, Gaussian "
+                            "noise sigma 0.01 on the encoded scale, 8 bits); scored against "
+                            "the sRGB sharp.png. " + protocol)
+            if str(gamma) != "linear":
+                chosen = sorted({f"{r['gamma']} ({r['gamma_reason']})" for r in rows})
+                protocol += (f" Gamma {gamma}: estimated and deconvolved in linear light, "
+                             "re-encoded before scoring; chosen: " + "; ".join(chosen) + ".")
             result = {"suite": suite, "quick": quick, "methods": list(methods),
+                      "gamma": str(gamma),
                       "cases": rows, "summary": summarise(rows, methods),
                       "targets": targets(rows, methods), "protocol": protocol,
                       "data": str(data)}

@@ -2,16 +2,26 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import shutil
+import zlib
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CATEGORIES", "SUITES", "default_data_dir", "float_image", "lai_cases", "lai_load",
+__all__ = ["CATEGORIES", "LAI_SRGB_NOISE", "SUITES", "case_gamma", "default_cache_dir",
+           "default_data_dir", "float_image", "lai_cases", "lai_load", "lai_srgb_case",
            "levin_cases", "levin_load", "levin_motion", "real_photos"]
 
-#: Suite name -> folder name under ``shared/data``.
-SUITES = {"lai": "lai", "levin": "levin", "real": "paper-real"}
+#: Suite name -> folder name under ``shared/data`` (``lai-srgb`` is rendered from ``lai``).
+SUITES = {"lai": "lai", "lai-srgb": "lai", "levin": "levin", "real": "paper-real"}
+#: Noise of the ``lai-srgb`` cases: zero-mean Gaussian of this sigma on the stored
+#: (sRGB-encoded) [0, 1] scale, then 8-bit rounding -- the noise of the ``lai`` files.
+LAI_SRGB_NOISE = 0.01
+#: Changes whenever the rendering of ``lai-srgb`` does (the cache is keyed by it).
+_LAI_SRGB_VERSION = "1"
 CATEGORIES = ("manmade", "natural", "people", "saturated", "text")
 #: Levin's anchor protocol (its README): these 8 cases, 1/10 px shift, 24 px border.
 LEVIN_ANCHOR_CASES = tuple(f"im0{i}_ker0{k}" for i in range(1, 5) for k in (2, 5))
@@ -67,6 +77,78 @@ def lai_load(case: dict):
     return (float_image(read_image(folder / "blurred.png")),
             float_image(read_image(folder / "sharp.png")),
             CameraMotion.load(folder / "truth.json"))
+
+
+def default_cache_dir() -> Path:
+    """Where rendered ``lai-srgb`` cases are kept: ``$XDG_CACHE_HOME`` (or ``~/.cache``)
+    ``/napari-edgecme/lai-srgb``."""
+    root = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(root) / "napari-edgecme" / "lai-srgb"
+
+
+def lai_srgb_case(case: dict, cache: Path) -> dict:
+    """The ``lai-srgb`` version of a ``lai`` case: blurred in linear light, sRGB-encoded.
+
+    The physically right order, which ``lai`` itself does not follow (Lai et al. blurred
+    the 8-bit sRGB values as they were): ``sharp.png`` (8-bit sRGB) is linearised, blurred
+    with the case's true motion (``truth.json``) by :func:`~..core.synth.render_blur`
+    (dense cubic warping, independent of the estimator's operator), clipped to [0, 1] and
+    encoded to sRGB; then, as ``lai``, Gaussian noise of :data:`LAI_SRGB_NOISE` on the
+    [0, 1] scale of the file, clipped and rounded to 8 bits. The noise is added to the
+    encoded values so that the file is as noisy as ``lai``'s (a sigma of 0.01 in linear
+    light would become up to 0.13 in the shadows after the sRGB curve's slope of 12.92).
+    Each case has its own generator (seeded from its name), so reruns are identical.
+
+    The rendered case is a folder like ``lai``'s under ``cache`` (``blurred.png``,
+    ``sharp.png``, ``truth.json``, ``case.json``), written once and reused while its
+    sources and this rendering are unchanged; :func:`lai_load` reads it. The reference is
+    the sRGB-encoded ``sharp.png`` (what the user sees).
+    """
+    from ..core.io import atomic_path, read_image, write_image
+    from ..core.motion import CameraMotion
+    from ..core.photometry import linear_to_srgb, srgb_to_linear
+    from ..core.synth import render_blur
+
+    src = Path(case["dir"])
+    digest = hashlib.sha256(_LAI_SRGB_VERSION.encode())
+    for name in ("sharp.png", "truth.json"):
+        digest.update((src / name).read_bytes())
+    key = digest.hexdigest()[:16]
+    folder = Path(cache) / case["name"]
+    stamp = folder / "source.json"
+    if not (stamp.is_file() and json.loads(stamp.read_text()).get("key") == key):
+        folder.mkdir(parents=True, exist_ok=True)
+        sharp = float_image(read_image(src / "sharp.png")).astype(np.float64)
+        truth = CameraMotion.load(src / "truth.json")
+        blurred = linear_to_srgb(np.clip(render_blur(srgb_to_linear(sharp), truth), 0, 1))
+        rng = np.random.default_rng([2016, zlib.crc32(case["name"].encode())])
+        noisy = blurred + rng.normal(0.0, LAI_SRGB_NOISE, blurred.shape)
+        write_image(folder / "blurred.png", np.round(np.clip(noisy, 0, 1) * 255)
+                    .astype(np.uint8))
+        for name in ("sharp.png", "truth.json", "case.json"):
+            with atomic_path(folder / name) as tmp:
+                shutil.copyfile(src / name, tmp)
+        with atomic_path(stamp) as tmp:
+            tmp.write_text(json.dumps({"key": key, "source": str(src),
+                                       "noise": LAI_SRGB_NOISE}) + "\n")
+    return {**case, "dir": str(folder), "source_dir": str(src)}
+
+
+def case_gamma(case: dict, gamma="linear"):
+    """The transfer curve a suite's case is run with, and why: ``gamma`` parsed
+    (:func:`~..core.photometry.parse_gamma`); ``"auto"`` decides from the case's file as
+    ``edgecme deblur`` does (``lai``'s ``blurred.png``: 8-bit PNG -> srgb; ``levin``'s
+    ``.mat`` floats -> linear)."""
+    from ..core.io import read_image
+    from ..core.photometry import decide_gamma, parse_gamma
+
+    curve = parse_gamma(gamma)
+    if curve != "auto":
+        return curve, "given"
+    if case.get("file"):  # levin: a .mat of floats
+        return decide_gamma(case["file"], np.zeros(1, np.float32))
+    path = Path(case["dir"]) / "blurred.png"
+    return decide_gamma(path, read_image(path))
 
 
 def levin_cases(data: Path, quick: bool) -> list[dict]:

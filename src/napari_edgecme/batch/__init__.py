@@ -70,7 +70,7 @@ __all__ = ["BatchResult", "Photo", "collect_photos", "deblur_many", "deblur_phot
 def deblur_many(paths, out_dir, method: str = "xu+ep", model: str = "rotation",
                 max_blur: float | None = None, focal_px: float | None = None, *,
                 deconvolution: str = "hyperlaplacian", deconv_params: dict | None = None,
-                recursive: bool = False, force: bool = False, client=None,
+                gamma="auto", recursive: bool = False, force: bool = False, client=None,
                 scheduler: str | None = None, workers: int | None = None,
                 callback: Callable[[Progress], None] | None = None,
                 log: Callable[[str], None] | None = None,
@@ -93,6 +93,13 @@ def deblur_many(paths, out_dir, method: str = "xu+ep", model: str = "rotation",
     deconvolution : {"hyperlaplacian", "rl", "wiener"}
     deconv_params : dict, optional
         ``lam``, ``iterations`` or ``nsr`` of the deconvolution.
+    gamma : {"auto", "linear", "srgb"}, float or Gamma
+        Each photo's transfer curve, as ``edgecme deblur --gamma``: the motion is
+        estimated and the photo deconvolved in linear light and the output re-encoded as
+        the photo was; ``"auto"`` (default) decides per photo from its file
+        (:func:`~napari_edgecme.core.photometry.decide_gamma`: 8-bit JPEG/PNG -> sRGB,
+        16-bit or float TIFF -> linear, colour tags first). The summary line says what
+        was chosen.
     recursive : bool
         Include the photos of sub-folders.
     force : bool
@@ -137,7 +144,7 @@ def deblur_many(paths, out_dir, method: str = "xu+ep", model: str = "rotation",
     """
     t0 = time.monotonic()
     options = batch_options(method, model, max_blur, focal_px, deconvolution, deconv_params,
-                       dict(params))
+                       dict(params), gamma)
     if sum(x is not None for x in (client, scheduler)) > 1:
         raise ValueError("pass either client or scheduler, not both")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)

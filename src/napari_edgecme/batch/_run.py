@@ -24,12 +24,13 @@ __all__ = ["ESTIMATION_PARAMS"]
 ESTIMATION_PARAMS = ("lambda_w", "lambda_ip", "lambda_f", "n_iter", "max_side")
 
 
-def batch_options(method, model, max_blur, focal_px, deconvolution, deconv_params, params
-             ) -> argparse.Namespace:
+def batch_options(method, model, max_blur, focal_px, deconvolution, deconv_params, params,
+                  gamma="auto") -> argparse.Namespace:
     """The ``edgecme deblur`` options of a batch, checked once before any photo runs."""
     from ..core import deconv as _deconv
     from ..core import estimate as _estimate
     from ..core._validation import check_choice
+    from ..core.photometry import parse_gamma
 
     unknown = sorted(set(params) - {"rng", *ESTIMATION_PARAMS})
     if unknown:
@@ -44,6 +45,7 @@ def batch_options(method, model, max_blur, focal_px, deconvolution, deconv_param
     deconvolution = check_choice(deconvolution, "deconvolution", _deconv.METHODS)
     _deconv.check_deconvolution_parameters(deconvolution, dict(deconv_params or {}))
     options = argparse.Namespace(
+        gamma=parse_gamma(gamma),
         method=check_choice(method, "method", _estimate.METHODS),
         model=check_choice(model, "model", MODELS), max_blur=max_blur,
         focal_px=focal_px, seed=int(seed), profiles=None, deconvolution=deconvolution,

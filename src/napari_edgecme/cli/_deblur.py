@@ -1,4 +1,10 @@
-"""The commands that estimate the camera motion and undo it: estimate, deblur, batch, deconvolve."""
+"""The commands that estimate the camera motion and undo it: estimate, deblur, batch, deconvolve.
+
+``--gamma {auto,linear,srgb,VALUE}``: the motion is estimated and the photo deconvolved in
+linear light; the input is linearised through its transfer curve (``auto``: decided from
+the file, :func:`~napari_edgecme.core.photometry.decide_gamma`) and the output re-encoded
+through the same curve. The summary says what was chosen and why.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +14,9 @@ from pathlib import Path
 from ..core import deconv as _deconv
 from ..core import estimate as _estimate
 from ..core import io as _io
+from ..core.deblur import record_gamma
 from ..core.motion import CameraMotion
+from ..core.photometry import Gamma, decide_gamma, parse_gamma
 from ._console import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, CLIError, _Console, _UsageError
 from ._files import (
     _check_output,
@@ -21,7 +29,35 @@ from ._files import (
 from ._options import _describe, _estimation_params, _focal_px, _max_blur, deconvolution_params
 
 
-def _estimate_motion(args, console: _Console, image, path: Path):
+def gamma_setting(args) -> Gamma | str:
+    """``--gamma`` checked (``"auto"`` or a :class:`Gamma`); a bad value is a usage error."""
+    try:
+        value = getattr(args, "gamma", None)
+        return parse_gamma("auto" if value is None else value)
+    except ValueError as err:
+        raise _UsageError(str(err).replace("gamma must", "--gamma must", 1)) from None
+
+
+def linear_input(args, image, path: Path) -> tuple[object, Gamma, str]:
+    """The image in linear light, its transfer curve and why (``--gamma``, from the file
+    for ``auto``); a linear image comes back as read."""
+    curve = gamma_setting(args)
+    if curve == "auto":
+        curve, reason = decide_gamma(path, image)
+    else:
+        reason = "given"
+    return (image if curve.is_linear else curve.decode(image)), curve, reason
+
+
+def gamma_note(curve: Gamma, reason: str) -> str:
+    """``gamma: srgb (8-bit PNG)``, as the summaries print it."""
+    return f"gamma: {curve.name} ({reason})"
+
+
+def _estimate_motion(args, console: _Console, image, path: Path, curve=None, reason=""):
+    """Estimate on ``image`` (already linear light when ``curve`` is given)."""
+    if curve is None:
+        image, curve, reason = linear_input(args, image, path)
     shape = image.shape[:2]
     max_blur = _max_blur(args.max_blur, shape)
     focal_px, focal_source = _focal_px(args, path, shape)
@@ -36,6 +72,7 @@ def _estimate_motion(args, console: _Console, image, path: Path):
     gen = _estimate.iter_estimate_motion(image, args.method, args.model, max_blur, focal_px,
                                          profiles, **_estimation_params(args))
     result = console.run(gen)
+    record_gamma(result.info, curve, reason)
     return result, max_blur, focal_source
 
 
@@ -58,6 +95,8 @@ def estimate_summary(result, requested: str, max_blur: float, focal_source: str)
     text += f", {info.seconds:.1f} s)"
     if not info.converged:
         text += f"; {info.message}"
+    if getattr(info, "gamma", None) is not None:
+        text += f"; gamma: {info.gamma} ({info.gamma_reason})"
     return text
 
 
@@ -65,6 +104,7 @@ def cmd_estimate(args, console: _Console) -> int:
     path = _existing_input(args.image, "image")
     _check_output(args.output, "-o")
     _distinct([("IMAGE", path)], [("-o", args.output)])
+    gamma_setting(args)
     image = read_input_image(path, console)
     result, max_blur, source = _estimate_motion(args, console, image, path)
     with _writing(args.output) as (tmp,):
@@ -77,16 +117,21 @@ def cmd_estimate(args, console: _Console) -> int:
 def deblur_image(args, console: _Console, image, path: Path, params: dict):
     """Estimate the motion of ``image`` (read from ``path``) and deconvolve it, as ``deblur``.
 
+    Both run in linear light (``args.gamma``, :func:`linear_input`), and ``restored`` is
+    re-encoded as ``image`` was; ``estimate.info.gamma`` and ``.gamma_reason`` say how.
     Returns ``(restored, estimate, max_blur, focal source, deconvolution seconds)``; with no
     blur found, ``restored`` is ``image`` itself. ``edgecme batch`` runs this per photo.
     """
-    result, max_blur, source = _estimate_motion(args, console, image, path)
+    work, curve, reason = linear_input(args, image, path)
+    result, max_blur, source = _estimate_motion(args, console, work, path, curve, reason)
     t0 = time.perf_counter()
     if result.info.no_blur:  # nothing to undo: the photo comes back as it was
         restored = image
     else:
-        restored = console.run(_deconv.iter_deconvolve(image, result.motion,
+        restored = console.run(_deconv.iter_deconvolve(work, result.motion,
                                                        args.deconvolution, **params))
+        if not curve.is_linear:
+            restored = curve.encode(restored)
     return restored, result, max_blur, source, time.perf_counter() - t0
 
 
@@ -97,6 +142,7 @@ def cmd_deblur(args, console: _Console) -> int:
         outputs.append(("--save-motion", _check_output(args.save_motion, "--save-motion")))
     _distinct([("IMAGE", path)], outputs)
     params = deconvolution_params(args, args.deconvolution)
+    gamma_setting(args)
     image = read_input_image(path, console)
     restored, result, max_blur, source, seconds = deblur_image(args, console, image, path,
                                                                 params)
@@ -120,12 +166,14 @@ def cmd_batch(args, console: _Console) -> int:
                           "--scheduler")
     params = {name: getattr(args, name) for name in batch.ESTIMATION_PARAMS
               if getattr(args, name) is not None}
+    gamma = gamma_setting(args)
     try:
         with console.stage() as callback:
             result = batch.deblur_many(
                 args.inputs, args.output, args.method, args.model, args.max_blur,
                 args.focal_px, deconvolution=args.deconvolution,
                 deconv_params=deconvolution_params(args, args.deconvolution),
+                gamma=gamma,
                 recursive=args.recursive, force=args.force, scheduler=args.scheduler,
                 workers=args.workers, callback=callback, log=console.info,
                 warn=console.warn, rng=args.seed, **params)
@@ -161,13 +209,17 @@ def cmd_deconvolve(args, console: _Console) -> int:
         args.deconvolution = args.old_method
     args.method = args.deconvolution or "hyperlaplacian"
     params = deconvolution_params(args, args.method)
+    gamma_setting(args)
     motion = CameraMotion.load(motion_path)
     image = read_input_image(path, console)
+    work, curve, reason = linear_input(args, image, path)
     t0 = time.perf_counter()
-    restored = console.run(_deconv.iter_deconvolve(image, motion, args.method, **params))
+    restored = console.run(_deconv.iter_deconvolve(work, motion, args.method, **params))
+    if not curve.is_linear:
+        restored = curve.encode(restored)
     seconds = time.perf_counter() - t0
     with _writing(args.output) as (tmp,):
         _io.write_image(tmp, restored, bits=output_bits(image))
     console.info(f"deconvolved {path} ({args.method}, {_describe(motion)}) in {seconds:.1f} s;"
-                 f" wrote {args.output}")
+                 f" {gamma_note(curve, reason)}; wrote {args.output}")
     return EXIT_OK

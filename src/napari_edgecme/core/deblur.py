@@ -3,29 +3,57 @@
 :func:`deblur` is the engine's one-call face (the CLI's ``edgecme deblur``, the batch
 runner and the demo go through it): the motion is estimated on a working copy
 (:func:`~.estimate.estimate_motion`) and the photo is deconvolved at its own resolution
-(:func:`~.deconv.deconvolve`).
+(:func:`~.deconv.deconvolve`). With ``gamma`` other than linear, both run in linear light:
+the input is linearised first and the restored image re-encoded as the input was
+(:mod:`.photometry`).
 """
 
 from __future__ import annotations
 
 from ._validation import as_float_image, check_choice
 from .estimate import estimate_motion
+from .photometry import decide_gamma, parse_gamma
 
-__all__ = ["deblur"]
+__all__ = ["deblur", "record_gamma"]
 
 
 def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: float | None = None,
            focal_px: float | None = None, *, deconvolution: str = "hyperlaplacian",
-           deconv_params: dict | None = None, callback=None, **params):
+           deconv_params: dict | None = None, callback=None, gamma="linear", **params):
     """Estimate the camera motion, then deconvolve the image with it at full resolution.
 
     When no blur is found (``estimate.info.no_blur``, with a warning) the image is not
     deconvolved: ``restored`` is the input as floating point, unchanged.
 
+    Parameters
+    ----------
+    image : array_like of shape (M, N) or (M, N, 3)
+    method, model, max_blur, focal_px, callback, **params
+        As :func:`~.estimate.estimate_motion`.
+    deconvolution, deconv_params
+        As :func:`~.deconv.deconvolve` (``method`` and its parameters).
+    gamma : {"linear", "srgb", "auto"}, float or Gamma
+        The transfer curve ``image`` is stored through. Blur adds light linearly, so
+        with ``"srgb"`` (an 8-bit camera photo) or a power-law exponent (``2.2``:
+        ``linear = value ** 2.2``) the image is linearised, the motion is estimated
+        (edge profiles, L0 latent) and the image deconvolved in linear light, and
+        ``restored`` is re-encoded through the same curve (negative ringing clipped
+        first). ``"linear"`` (default) takes the values as linear light, as before;
+        ``"auto"`` is linear for an array (:func:`~.photometry.decide_gamma` decides
+        from a file; the command line does that).
+
     Returns
     -------
     restored : ndarray, float32 in [0, 1], shaped like ``image``
+        Encoded as ``image`` was.
     estimate : MotionEstimate
+        ``estimate.info.gamma`` (the curve's name: ``"linear"``, ``"srgb"``, ``"2.2"``)
+        and ``estimate.info.gamma_reason`` record the choice (attributes set here).
+
+    Raises
+    ------
+    ValueError
+        A bad ``gamma`` (one line naming it), as the other options, before any work.
     """
     from .deconv import METHODS as DECONV_METHODS
     from .deconv import check_deconvolution_parameters, deconvolve
@@ -35,10 +63,26 @@ def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: floa
     if deconv_params is not None and not isinstance(deconv_params, dict):
         raise ValueError(f"deconv_params must be a dict; got {type(deconv_params).__name__}")
     check_deconvolution_parameters(deconvolution, dict(deconv_params or {}))
-    estimate = estimate_motion(image, method, model, max_blur, focal_px, callback=callback,
+    curve = parse_gamma(gamma)
+    if curve == "auto":
+        curve, reason = decide_gamma(None, image)
+    else:
+        reason = "given"
+    work = image if curve.is_linear else curve.decode(image)  # linear light
+    estimate = estimate_motion(work, method, model, max_blur, focal_px, callback=callback,
                                **params)
+    record_gamma(estimate.info, curve, reason)
     if estimate.info.no_blur:  # nothing to undo: the photo comes back unchanged
         return as_float_image(image, allow_rgb=True), estimate
-    restored = deconvolve(image, estimate.motion, deconvolution, callback=callback,
+    restored = deconvolve(work, estimate.motion, deconvolution, callback=callback,
                           **(deconv_params or {}))
+    if not curve.is_linear:
+        restored = curve.encode(restored)
     return restored, estimate
+
+
+def record_gamma(info, curve, reason: str) -> None:
+    """Set ``info.gamma`` (the curve's name) and ``info.gamma_reason`` on an
+    :class:`~.estimate.EstimateInfo` (attributes beside its fields)."""
+    info.gamma = curve.name
+    info.gamma_reason = reason
