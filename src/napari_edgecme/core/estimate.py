@@ -1,4 +1,4 @@
-"""Camera-motion estimation: EpAlone (Eq. 19), Xu (L0, Eq. 21-22 with lambda_Ip = 0) and Xu+Ep.
+"""Camera-motion estimation: EpAlone (Eq. 16), Xu (L0, Eq. 21-22 with lambda_Ip = 0) and Xu+Ep.
 
 All three share one coarse-to-fine driver (paper Algorithm 1 run over an image
 pyramid with ratio ``1/sqrt(2)``):
@@ -11,8 +11,14 @@ pyramid with ratio ``1/sqrt(2)``):
 * every MDF update solves a non-negative L1 problem (:func:`~.lasso.nonneg_lasso`),
   then drops weights below ``1/20`` of the largest, renormalises and re-centres the
   MDF on the grid (claims 1-2: the result is defined up to a homography);
-* **EpAlone** minimises ``||M (T_w I_p - I_ep)||^2 + lambda_w ||w||_1`` (Eq. 19) --
-  no latent image;
+* **EpAlone** minimises ``sum_i c_i ||M_i w - dE_i||^2 + lambda_w ||w||_1`` (Eq. 16 on
+  the measurement matrix of Eqs. 13-15, :mod:`~.measurement`) -- no latent image. The
+  paper solves the image-domain Eq. 19 instead, for speed; the direct form is cheaper
+  here, uses the profiles' averaged derivatives rather than single-pixel gradients, and
+  takes a weight ``c_i`` per profile: its confidence times its agreement with the
+  current estimate, updated after every MDF update (:mod:`~.profile_fit`). On the 20
+  cases of the ``lai`` quick set the mean PSF NCC against the truth went from 0.543
+  (Eq. 19) to 0.601, and the estimate takes 3 s instead of 23 s;
 * **Xu** alternates the L0-gradient latent update (Eq. 21) and the gradient-domain
   MDF update; **Xu+Ep** adds ``lambda_Ip`` times the edge-profile term (Eq. 22).
   ``lambda_Ip = 0`` is exactly Xu.
@@ -38,9 +44,11 @@ from .deconv_prior import grad
 from .lasso import nonneg_lasso
 from .latent import iter_l0_latent
 from .mdf import border_taper, edge_profile_term, gradient_term, psf_basis
+from .measurement import measurement_matrix
 from .motion import CameraMotion, psf_size_for
 from .operators import PatchGrid
 from .photometry import LUMA
+from .profile_fit import RobustProfileFit
 from .progress import Progress, StopRequested, drive
 
 __all__ = [
@@ -140,6 +148,9 @@ class EstimateInfo:
     #: L0 cost (Eq. 21, per pixel) of the estimate and of the identity motion
     blind_cost: float | None = None
     identity_cost: float | None = None
+    #: EpAlone: the share of the edge profiles' energy the estimate leaves unexplained
+    #: (Eq. 16; :meth:`~.profile_fit.RobustProfileFit.relative_misfit`)
+    profile_misfit: float | None = None
 
 
 @dataclass
@@ -333,7 +344,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     image : ndarray of shape (H, W) or (H, W, 3)
         The blurred photo (any numeric dtype; RGB is estimated on luminance).
     method : {"ep", "xu", "xu+ep"}
-        EpAlone (Eq. 19), Xu et al. L0 (the baseline) or Xu+Ep (Eq. 22).
+        EpAlone (Eq. 16), Xu et al. L0 (the baseline) or Xu+Ep (Eq. 22).
     model : {"translation", "inplane", "rotation"}
         Pose model; ``"translation"`` is uniform (space-invariant) blind deblurring.
     max_blur : float, optional
@@ -459,6 +470,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     stopped = False
     try:
         motion, latent, step = yield from run.iterate(step, total)
+        info.profile_misfit = run.profile_misfit
         # -- collapse to no blur: restart once from a wide motion, with a stronger L0
         # weight (the sharp-edged latent then has to be explained by the blur)
         extent = motion.max_displacement()
@@ -489,9 +501,14 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             info.no_blur = True
             info.message += "; no blur found (the image is constant)"
         else:
-            info.blind_cost, info.identity_cost = blind_costs(run.finest, motion, lambda_f)
-            # the cost test needs an image with structure and an interior to compare on
-            comparable = math.isfinite(info.identity_cost) and info.identity_cost > 1e-12
+            # the L0 cost is the latent-image methods' own objective; EpAlone has none, and
+            # its profiles measured the blur directly (a good EpAlone estimate of an
+            # in-plane shake can cost 1.75x the identity where the truth costs 1.4x)
+            comparable = False
+            if method != "ep":
+                info.blind_cost, info.identity_cost = blind_costs(run.finest, motion, lambda_f)
+                # the cost test needs an image with structure and an interior to compare on
+                comparable = math.isfinite(info.identity_cost) and info.identity_cost > 1e-12
             if extent < COLLAPSE_EXTENT or (
                     comparable and info.blind_cost > _NO_BLUR_RATIO * info.identity_cost):
                 info.no_blur = True
@@ -536,6 +553,9 @@ class _CoarseToFine:
         self.motion: CameraMotion | None = None
         self.latent = None
         self.finest: _Level | None = None
+        #: EpAlone: the share of the profiles the last estimate leaves unexplained
+        #: (:meth:`~.profile_fit.RobustProfileFit.relative_misfit`)
+        self.profile_misfit: float | None = None
 
     def iterate(self, step: int, total: int, *, wide_start: bool = False,
                 lambda_f_factor: float = 1.0):
@@ -550,9 +570,13 @@ class _CoarseToFine:
             weights = _initial_weights(level, self.motion, wide=wide_start)
             active = np.ones(level.grid.counts, bool) if self.motion is None else _dilate(
                 weights > 0)
-            ep_images = None
-            if self.profiles is not None and (method == "ep" or self.lambda_ip > 0):
-                ep_images = _edge_images(level, self.profiles, s, self.gain)
+            ep_data = None
+            if self.profiles is not None and (method == "ep" or (
+                    self.lambda_ip > 0 and XU_EP_TERM == "profiles")):  # Eq. 16, robust
+                ep_data = RobustProfileFit(self.profiles.rescaled(s) if s != 1
+                                           else self.profiles)
+            elif self.profiles is not None and self.lambda_ip > 0:  # Eq. 22's Eq. 19 term
+                ep_data = _edge_images(level, self.profiles, s, self.gain)
             # coarse levels: sharper edges, larger weight
             lam_f = lambda_f_factor * self.lambda_f * s ** -_LAMBDA_F_SCALING
             level_iter = self.level_iters[li]
@@ -568,9 +592,13 @@ class _CoarseToFine:
                     lam_f = max(lam_f / 1.1, 1e-4)
                     yield Progress("estimate", step, total, f"{where}: camera motion", **at)
                 weights, cost, n_lasso = _mdf_step(level, weights, active, self.latent,
-                                                   ep_images, self.lambda_w, self.lambda_ip,
+                                                   ep_data, self.lambda_w, self.lambda_ip,
                                                    method,
                                                    salient=_SALIENT_START * 1.1 ** min(it, 24))
+                if isinstance(ep_data, RobustProfileFit):  # IRLS: weigh by agreement
+                    ep_data.update(level.cache["measurement"], weights[active])
+                    self.profile_misfit = ep_data.relative_misfit(level.cache["measurement"],
+                                                                  weights[active])
                 self.motion = level.motion(weights)
                 record.costs.append(cost)
                 record.active_poses.append(int(active.sum()))
@@ -582,6 +610,12 @@ class _CoarseToFine:
                                else None, **at)
             self.finest = level
         return self.motion, self.latent, step
+
+
+#: The edge-profile term of Xu+Ep (Eq. 22): ``"images"``, the paper's Eq. 19 term
+#: ``||M (T_w I_p - I_ep)||^2`` in gradient units, or ``"profiles"``, Eq. 16's robust
+#: term on the profiles themselves (as EpAlone), each term over its own data energy.
+XU_EP_TERM = "images"
 
 
 #: Xu+Ep uses the automatic profiles whose calibrated confidence is at least this
@@ -676,23 +710,32 @@ def _salient_gradients(latent_grad: np.ndarray, blurred: np.ndarray, fraction: f
     return latent_grad * keep
 
 
-def _mdf_step(level: _Level, weights, active, latent, ep_images, lambda_w, lambda_ip, method,
+def _mdf_step(level: _Level, weights, active, latent, ep_data, lambda_w, lambda_ip, method,
               salient: float = 1.0):
-    """One MDF update on the active poses (Eq. 19 for EpAlone, Eq. 22 otherwise).
+    """One MDF update on the active poses (Eq. 16 for EpAlone, Eq. 22 otherwise).
 
-    The active set is fixed within a level, so its tiles, PSF basis and edge-profile
-    term are built once per level and kept in ``level.cache``.
+    ``ep_data`` is the level's :class:`~.profile_fit.RobustProfileFit` (EpAlone) or its
+    ``(I_p, I_ep, M)`` images (Xu+Ep), or None (Xu). The active set is fixed within a
+    level, so its tiles, PSF basis, measurement matrix and edge-profile term are built
+    once per level and kept in ``level.cache``.
     """
     key = active.tobytes()
     if level.cache.get("key") != key:
         poses = level.grid.poses(active)
-        pgrid = level.patch_grid(poses)
-        level.cache = {"key": key, "pgrid": pgrid,
-                       "basis": psf_basis(level.model, level.intrinsics, poses, pgrid)}
-    pgrid, basis = level.cache["pgrid"], level.cache["basis"]
-    if ep_images is not None and (method == "ep" or lambda_ip > 0) and "ep" not in level.cache:
-        level.cache["ep"] = edge_profile_term(*ep_images, pgrid, basis)
+        level.cache = {"key": key}
+        if isinstance(ep_data, RobustProfileFit):
+            level.cache["measurement"] = measurement_matrix(ep_data.profiles, level.model,
+                                                            level.intrinsics, poses)
+        if method != "ep":
+            pgrid = level.patch_grid(poses)
+            level.cache.update(pgrid=pgrid, basis=psf_basis(level.model, level.intrinsics,
+                                                             poses, pgrid))
+    if (method != "ep" and ep_data is not None and lambda_ip > 0 and "ep" not in level.cache
+            and not isinstance(ep_data, RobustProfileFit)):
+        level.cache["ep"] = edge_profile_term(*ep_data, level.cache["pgrid"],
+                                              level.cache["basis"])
     if method != "ep":
+        pgrid, basis = level.cache["pgrid"], level.cache["basis"]
         taper = border_taper(level.shape, pgrid.psf_size // 2).astype(level.blurred.dtype)
         f_grad = _salient_gradients(np.stack(grad(latent)), level.blurred, salient) * taper
         g_grad = np.stack(grad(level.blurred)) * taper
@@ -700,10 +743,15 @@ def _mdf_step(level: _Level, weights, active, latent, ep_images, lambda_w, lambd
             f_grad = ndimage.gaussian_filter(f_grad, (0, _GRADIENT_SMOOTHING, _GRADIENT_SMOOTHING))
             g_grad = ndimage.gaussian_filter(g_grad, (0, _GRADIENT_SMOOTHING, _GRADIENT_SMOOTHING))
         term = gradient_term(f_grad, g_grad, pgrid, basis)
-        if "ep" in level.cache:  # Eq. 22: both terms in gradient units
+        if isinstance(ep_data, RobustProfileFit) and lambda_ip > 0:
+            # Eq. 22 with Eq. 16's term: each term over its own data energy
+            profile = ep_data.term(level.cache["measurement"])
+            term = (term.scaled(1.0 / max(term.constant, 1e-30))
+                    + profile.scaled(lambda_ip / max(profile.constant, 1e-30)))
+        elif "ep" in level.cache:  # Eq. 22: both terms in gradient units
             term = term + level.cache["ep"].scaled(lambda_ip)
     else:
-        term = level.cache["ep"]  # Eq. 19
+        term = ep_data.term(level.cache["measurement"])  # Eq. 16
     # normalise by the data energy: lambda_w then means the same at every scale
     term = term.scaled(1.0 / max(term.constant, 1e-30))
     result = nonneg_lasso(term, lambda_w, weights[active], max_iter=_LASSO_MAX_ITER)

@@ -1,8 +1,16 @@
-"""The measurement matrix of the edge-profile cue (paper Eqs. 13-16).
+"""The measurement matrix of the edge-profile cue (paper Eqs. 13-16) and its data term.
 
 Row block ``i`` of ``M`` maps the motion density function's weights to the derivative of
 profile ``i``: each pose puts its weight at the displacement it causes along the profile's
-normal (the Radon slice of the local PSF, Eq. 13).
+normal (the Radon slice of the local PSF, Eq. 13). Stacking the blocks gives ``dE = M w``
+(Eq. 15), and EpAlone solves Eq. 16 on it: :func:`profile_term` is its data term, with a
+weight per profile, and :func:`profile_misfit` says how far each profile is from a motion.
+
+The paper replaces Eq. 16 by the image-domain Eq. 19 because building ``M`` is costly at
+full resolution. Here it is not: ``M`` has two entries per profile and pose, the profiles'
+derivatives are averages over several parallel lines (far less noisy than the single-pixel
+gradients of ``I_ep``), and a weight per profile -- for robustness to false profiles --
+is a row scaling.
 """
 
 from __future__ import annotations
@@ -11,9 +19,11 @@ import numpy as np
 from scipy import sparse
 
 from .camera import Intrinsics, check_poses, displacements
+from .lasso import QuadraticTerm
+from .linop import MatrixOperator
 from .profiles import EdgeProfiles
 
-__all__ = ["measurement_matrix"]
+__all__ = ["measurement_matrix", "profile_misfit", "profile_term"]
 
 
 def measurement_matrix(profiles: EdgeProfiles, model: str, intrinsics: Intrinsics, poses,
@@ -66,3 +76,53 @@ def measurement_matrix(profiles: EdgeProfiles, model: str, intrinsics: Intrinsic
         vals.append(wgt[keep])
     return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                              shape=(n * N, len(poses)))
+
+
+def profile_term(matrix: sparse.csr_matrix, profiles: EdgeProfiles, weights=None
+                 ) -> QuadraticTerm:
+    """``1/2 sum_i c_i ||M_i w - dE_i||^2``: the data term of Eq. 16, a weight per profile.
+
+    Parameters
+    ----------
+    matrix : scipy.sparse.csr_matrix of shape (n * N, n_poses)
+        :func:`measurement_matrix` of ``profiles`` on the pose set of ``w``.
+    profiles : EdgeProfiles
+        ``n`` profiles on ``N`` offsets (their ``derivatives`` are ``dE``).
+    weights : array_like of shape (n,), optional
+        ``c_i >= 0`` (default 1): how much each profile is trusted.
+
+    Returns
+    -------
+    QuadraticTerm
+    """
+    n, N = len(profiles), profiles.offsets.size
+    c = np.ones(n) if weights is None else np.asarray(weights, np.float64).reshape(n)
+    if np.any(c < 0) or not np.all(np.isfinite(c)):
+        raise ValueError("profile weights must be finite and non-negative")
+    rows = np.repeat(np.sqrt(c), N)
+    scaled = sparse.diags(rows) @ matrix
+    target = rows * np.asarray(profiles.derivatives, np.float64).ravel()
+    return QuadraticTerm.least_squares(MatrixOperator(sparse.csr_matrix(scaled)), target)
+
+
+def profile_misfit(matrix: sparse.csr_matrix, profiles: EdgeProfiles, w) -> np.ndarray:
+    """How far each profile is from the projection a motion predicts (Eq. 14).
+
+    Parameters
+    ----------
+    matrix : scipy.sparse.csr_matrix of shape (n * N, n_poses)
+        :func:`measurement_matrix` of ``profiles`` on the pose set of ``w``.
+    profiles : EdgeProfiles
+    w : array_like of shape (n_poses,)
+        MDF weights.
+
+    Returns
+    -------
+    ndarray of shape (n,)
+        ``||M_i w - dE_i||^2 / ||dE_i||^2``: 0 for a profile the motion explains exactly,
+        about 1 or more for one it does not explain at all.
+    """
+    n, N = len(profiles), profiles.offsets.size
+    d = np.asarray(profiles.derivatives, np.float64)
+    residual = (matrix @ np.asarray(w, np.float64)).reshape(n, N) - d
+    return (residual ** 2).sum(1) / np.maximum((d ** 2).sum(1), 1e-300)

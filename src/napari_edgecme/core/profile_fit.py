@@ -1,0 +1,84 @@
+"""EpAlone's robust edge-profile fit: Eq. 16 with a weight per profile, reweighted.
+
+Automatic extraction keeps some false profiles (on lai, about one in five has a
+derivative that correlates under 0.8 with the true PSF's projection), and a least-squares
+fit bends towards them. Two things weight each profile ``i``:
+
+* a **prior**: its calibrated confidence (:attr:`~.profiles.EdgeProfiles.confidence`,
+  the chance that it is faithful), floored at :data:`PRIOR_FLOOR` so that no profile is
+  silenced before the data have spoken;
+* an **agreement** with the current estimate: the Cauchy weight
+  ``1 / (1 + (r_i / c)^2)`` of its misfit ``r_i`` (:func:`~.measurement.profile_misfit`),
+  with the scale ``c`` twice the median misfit (at least :data:`MISFIT_SCALE_FLOOR`):
+  a profile the motion explains as well as the typical one keeps most of its weight,
+  one several times worse than typical loses nearly all of it (iteratively reweighted
+  least squares, Holland & Welsch 1977).
+
+On the 20 cases of the ``lai`` quick set, fitting Eq. 16 on the full pose grid, the mean
+PSF NCC against the truth is 0.583 with equal weights and 0.604 with both weights.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+
+from .lasso import QuadraticTerm
+from .measurement import profile_misfit, profile_term
+from .profiles import EdgeProfiles
+
+__all__ = ["MISFIT_SCALE_FLOOR", "PRIOR_FLOOR", "RobustProfileFit"]
+
+#: Smallest prior weight of a profile (its confidence is floored here).
+PRIOR_FLOOR = 0.1
+#: Smallest Cauchy scale of the misfits: below this every profile fits well enough that
+#: the differences are noise, and none should be down-weighted for them.
+MISFIT_SCALE_FLOOR = 0.05
+
+
+class RobustProfileFit:
+    """The profiles of one pyramid level and their weights, updated against each estimate.
+
+    Parameters
+    ----------
+    profiles : EdgeProfiles
+        ``n`` centroid-aligned profiles at this level's resolution.
+
+    Attributes
+    ----------
+    prior : ndarray of shape (n,)
+        Confidence, floored at :data:`PRIOR_FLOOR` (1 where it is unknown).
+    weights : ndarray of shape (n,)
+        ``prior`` times the Cauchy weight of the last misfits (``prior`` before any).
+    misfit : ndarray of shape (n,) or None
+        The misfits of the last :meth:`update`.
+    """
+
+    def __init__(self, profiles: EdgeProfiles):
+        self.profiles = profiles
+        confidence = np.asarray(profiles.confidence, float)
+        self.prior = np.where(np.isfinite(confidence),
+                              np.clip(confidence, PRIOR_FLOOR, 1.0), 1.0)
+        self.weights = self.prior.copy()
+        self.misfit: np.ndarray | None = None
+
+    def term(self, matrix: sparse.csr_matrix) -> QuadraticTerm:
+        """The weighted data term of Eq. 16 on the pose set of ``matrix``."""
+        return profile_term(matrix, self.profiles, self.weights)
+
+    def update(self, matrix: sparse.csr_matrix, w: np.ndarray) -> np.ndarray:
+        """Re-weight every profile by its agreement with the MDF ``w``; return the weights."""
+        self.misfit = profile_misfit(matrix, self.profiles, w)
+        scale = max(2.0 * float(np.median(self.misfit)), MISFIT_SCALE_FLOOR)
+        self.weights = self.prior / (1.0 + (self.misfit / scale) ** 2)
+        return self.weights
+
+    def relative_misfit(self, matrix: sparse.csr_matrix, w: np.ndarray) -> float:
+        """``sum_i ||M_i w - dE_i||^2 / sum_i ||dE_i||^2`` over all profiles, unweighted.
+
+        How much of the profiles the motion leaves unexplained: the self-check of EpAlone.
+        """
+        d = np.asarray(self.profiles.derivatives, np.float64)
+        energy = (d ** 2).sum(1)
+        return float(np.sum(profile_misfit(matrix, self.profiles, w) * energy)
+                     / max(float(energy.sum()), 1e-300))
