@@ -36,20 +36,16 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from ._validation import as_float_image, as_rng, check_bool, check_choice, check_positive
-from .camera import MODELS, Intrinsics, PoseGrid, displacements, pose_grid
-from .deconv_prior import grad
-from .lasso import nonneg_lasso
+from .camera import MODELS, Intrinsics
 from .latent import iter_l0_latent
-from .mdf import border_taper, edge_profile_term, gradient_term, psf_basis
-from .measurement import measurement_matrix
-from .motion import CameraMotion, psf_size_for
-from .operators import PatchGrid
+from .mdf_update import XU_EP_TERM, edge_images, mdf_update
+from .motion import CameraMotion
 from .photometry import LUMA
 from .profile_fit import RobustProfileFit
 from .progress import Progress, StopRequested, drive
+from .pyramid import Level, dilate, initial_weights, pyramid_scales, resize
 
 __all__ = [
     "DEFAULTS",
@@ -78,15 +74,9 @@ DEFAULTS = {
     "coarsest_blur": 5.0,  # pyramid stops when the blur is this small (pixels)
 }
 
-_PYRAMID_RATIO = 1.0 / math.sqrt(2.0)
-_LASSO_MAX_ITER = 200
 _EP_UPDATES_PER_SCALE = 2
-_GRADIENT_SMOOTHING = 1.0
 _LAMBDA_F_SCALING = 1.0
-_ROLL_FROM_BLUR = 12.0  # levels whose blur (px) is below this keep theta_z = 0
-_CLUSTER_FLOOR = 0.1  # clusters lighter than this share of the heaviest one are dropped
 _SALIENT_START = 0.1  # share of latent gradients used by the first MDF update of a scale
-_WEIGHT_FLOOR = 1.0 / 20.0  # drop weights below this fraction of the largest (Whyte et al.)
 #: Alternations at the finest scale (at most; Xu, Xu+Ep). Measured on 16 synthetic
 #: cases (the bench set and 8 others): more alternations there let the L0 latent and
 #: the MDF drift from the truth (PSF NCC falls by up to 0.17 on some photos) and cost
@@ -200,62 +190,6 @@ def _contrast_gain(img: np.ndarray) -> tuple[float, float]:
     return float(lo), float(1.0 / (hi - lo))
 
 
-def _resize(img: np.ndarray, shape) -> np.ndarray:
-    from skimage.transform import resize
-
-    if tuple(shape) == img.shape:
-        return img
-    return resize(img, shape, order=1, anti_aliasing=True, preserve_range=True).astype(img.dtype)
-
-
-def _pyramid(shape, max_blur: float, coarsest_blur: float) -> list[float]:
-    """Scales of the pyramid levels, coarse to fine (the last is 1).
-
-    Levels shrink by ``1/sqrt(2)`` until the blur is ``coarsest_blur`` pixels, but the
-    coarsest level keeps at least 48 pixels on its smaller side.
-    """
-    n = 1
-    if max_blur > coarsest_blur:
-        n = math.floor(math.log(coarsest_blur / max_blur) / math.log(_PYRAMID_RATIO)) + 1
-    if min(shape) > 48:
-        n = min(n, math.floor(math.log(48 / min(shape)) / math.log(_PYRAMID_RATIO)) + 1)
-    else:
-        n = 1
-    return [_PYRAMID_RATIO ** (n - 1 - i) for i in range(n)]
-
-
-class _Level:
-    """One pyramid level: the observation, its camera, pose grid and MDF terms."""
-
-    def __init__(self, index, blurred, intrinsics, model, max_blur):
-        self.index = index
-        self.blurred = blurred
-        self.shape = blurred.shape
-        self.intrinsics = intrinsics
-        self.model = model
-        self.max_blur = max_blur
-        # roll (theta_z) barely changes the PSFs of a small image: keep it fixed at the
-        # coarse levels, where freeing it only adds ambiguity
-        roll = 0.5 if max_blur >= _ROLL_FROM_BLUR else 0.0
-        self.grid: PoseGrid = pose_grid(model, intrinsics, max_blur, roll_fraction=roll)
-        self.cache: dict = {}
-
-    def motion(self, weights_grid: np.ndarray) -> CameraMotion:
-        keep = weights_grid.ravel() > 0
-        return CameraMotion(self.model, self.intrinsics, self.grid.poses()[keep],
-                            weights_grid.ravel()[keep])
-
-    def patch_grid(self, poses) -> PatchGrid:
-        """Tiles for the MDF terms: a few per axis, each several PSFs wide."""
-        probe = PatchGrid(self.shape, 1, stride=max(self.shape))
-        corners = np.array([[0, 0], [0, self.shape[1] - 1], [self.shape[0] - 1, 0],
-                            [self.shape[0] - 1, self.shape[1] - 1]], float)
-        K = psf_size_for(displacements(self.model, self.intrinsics, poses,
-                                       np.vstack([probe.centres, corners])))
-        stride = int(max(2 * K, min(4 * K, 128, math.ceil(max(self.shape) / 3))))
-        return PatchGrid(self.shape, K, stride=stride)
-
-
 def _repeating(gen, record: Progress):
     """Run ``gen`` to its end, yielding ``record`` at each of its yields; return its value."""
     while True:
@@ -264,65 +198,6 @@ def _repeating(gen, record: Progress):
         except StopIteration as done:
             return done.value
         yield record
-
-
-def _initial_weights(level: _Level, previous: CameraMotion | None,
-                     wide: bool = False) -> np.ndarray:
-    if previous is None and wide:
-        # a blob over the whole grid (a third of its reach): the restart after a collapse
-        half = np.maximum(level.grid.half, 1).astype(float)
-        offsets = np.indices(level.grid.counts) - np.asarray(level.grid.half).reshape(
-            (-1,) + (1,) * len(level.grid.counts))
-        sigma = (half / 3.0).reshape((-1,) + (1,) * len(level.grid.counts))
-        w = np.exp(-0.5 * np.sum((offsets / sigma) ** 2, axis=0))
-        return w / w.sum()
-    if previous is None:
-        # a small blob, not a delta: the delta is a fixed point of the alternation (the
-        # L0 latent of a delta-blurred image explains the data with a delta again)
-        w = np.zeros(level.grid.counts)
-        centre = tuple(slice(max(h - 1, 0), h + 2) for h in level.grid.half)
-        offsets = np.indices(w[centre].shape) - np.minimum(level.grid.half, 1).reshape(
-            (-1,) + (1,) * w.ndim)
-        w[centre] = np.exp(-np.sum(offsets.astype(float) ** 2, axis=0))
-        return w / w.sum()
-    moved = previous.rescale(level.shape)
-    w = level.grid.splat(moved.poses, moved.weights)
-    return w / w.sum()
-
-
-def _dilate(support: np.ndarray, steps: int = 1) -> np.ndarray:
-    structure = np.ones((3,) * support.ndim, bool)
-    return ndimage.binary_dilation(support, structure, iterations=steps)
-
-
-def _clean(weights: np.ndarray) -> np.ndarray:
-    """Drop weights below 1/20 of the largest and small isolated clusters; renormalise; re-centre.
-
-    A camera traces one connected path through pose space: clusters of the support
-    (connected on the grid, diagonals included) holding less than a tenth of the total
-    weight are ghosts fitted to deconvolution artefacts, and are removed (Pan et al.
-    do the same on kernels).
-    """
-    w = np.where(weights >= _WEIGHT_FLOOR * weights.max(), weights, 0.0)
-    w /= w.sum()
-    if _CLUSTER_FLOOR > 0:
-        labels, n = ndimage.label(w > 0, np.ones((3,) * w.ndim, bool))
-        if n > 1:
-            mass = ndimage.sum_labels(w, labels, np.arange(1, n + 1))
-            keep = np.flatnonzero(mass >= _CLUSTER_FLOOR * mass.max()) + 1
-            w = np.where(np.isin(labels, keep), w, 0.0)
-            w /= w.sum()
-    idx = np.indices(w.shape).reshape(w.ndim, -1)
-    centroid = idx @ w.ravel()
-    shift = np.round(np.asarray(w.shape) // 2 - centroid).astype(int)
-    if np.any(shift):
-        moved = np.zeros_like(w)
-        src = tuple(slice(max(0, -s), n - max(0, s)) for s, n in zip(shift, w.shape, strict=True))
-        dst = tuple(slice(max(0, s), n - max(0, -s)) for s, n in zip(shift, w.shape, strict=True))
-        moved[dst] = w[src]
-        if moved.sum() > 0:
-            w = moved / moved.sum()
-    return w
 
 
 def _check_lambda(value, name, default, allow_zero=False):
@@ -412,7 +287,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     intr_full = Intrinsics.from_image_shape(shape, focal_px=focal_px)
     work_scale = min(1.0, max_side / max(shape))
     work_shape = tuple(max(8, round(s * work_scale)) for s in shape)
-    work_raw = _resize(gray, work_shape)
+    work_raw = resize(gray, work_shape)
     offset, gain = _contrast_gain(work_raw)
     constant = float(np.ptp(work_raw)) < 1e-6
     if method == "xu" and constant:  # ep, xu+ep say it with profiles
@@ -424,7 +299,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     info = EstimateInfo(method, model, max_blur, intr_full.focal_px, work_scale)
 
     # -- edge profiles -------------------------------------------------------------
-    scales = _pyramid(work_shape, blur_work, DEFAULTS["coarsest_blur"])
+    scales = pyramid_scales(work_shape, blur_work, DEFAULTS["coarsest_blur"])
     if method == "ep":  # no latent to alternate with: re-solve once after the clean-up
         n_iter = min(n_iter, _EP_UPDATES_PER_SCALE)
     # alternations per scale: fewer at the finest for the latent-image methods (the
@@ -552,7 +427,7 @@ class _CoarseToFine:
         self.preview, self.info = preview, info
         self.motion: CameraMotion | None = None
         self.latent = None
-        self.finest: _Level | None = None
+        self.finest: Level | None = None
         #: EpAlone: the share of the profiles the last estimate leaves unexplained
         #: (:meth:`~.profile_fit.RobustProfileFit.relative_misfit`)
         self.profile_misfit: float | None = None
@@ -563,12 +438,12 @@ class _CoarseToFine:
         self.motion = None
         for li, s in enumerate(scales):
             lshape = tuple(max(8, round(n * s)) for n in work_shape)
-            level = _Level(li, _resize(self.work, lshape), self.intrinsics.rescaled(lshape),
+            level = Level(li, resize(self.work, lshape), self.intrinsics.rescaled(lshape),
                            self.model, max(2.0, self.blur_work * s))
             record = ScaleRecord(li + 1, lshape, level.max_blur, level.grid.size)
             self.info.scales.append(record)
-            weights = _initial_weights(level, self.motion, wide=wide_start)
-            active = np.ones(level.grid.counts, bool) if self.motion is None else _dilate(
+            weights = initial_weights(level, self.motion, wide=wide_start)
+            active = np.ones(level.grid.counts, bool) if self.motion is None else dilate(
                 weights > 0)
             ep_data = None
             if self.profiles is not None and (method == "ep" or (
@@ -576,7 +451,7 @@ class _CoarseToFine:
                 ep_data = RobustProfileFit(self.profiles.rescaled(s) if s != 1
                                            else self.profiles)
             elif self.profiles is not None and self.lambda_ip > 0:  # Eq. 22's Eq. 19 term
-                ep_data = _edge_images(level, self.profiles, s, self.gain)
+                ep_data = edge_images(level, self.profiles, s, self.gain)
             # coarse levels: sharper edges, larger weight
             lam_f = lambda_f_factor * self.lambda_f * s ** -_LAMBDA_F_SCALING
             level_iter = self.level_iters[li]
@@ -591,7 +466,7 @@ class _CoarseToFine:
                         Progress("estimate", step, total, f"{where}: latent image", **at))
                     lam_f = max(lam_f / 1.1, 1e-4)
                     yield Progress("estimate", step, total, f"{where}: camera motion", **at)
-                weights, cost, n_lasso = _mdf_step(level, weights, active, self.latent,
+                weights, cost, n_lasso = mdf_update(level, weights, active, self.latent,
                                                    ep_data, self.lambda_w, self.lambda_ip,
                                                    method,
                                                    salient=_SALIENT_START * 1.1 ** min(it, 24))
@@ -612,11 +487,6 @@ class _CoarseToFine:
         return self.motion, self.latent, step
 
 
-#: The edge-profile term of Xu+Ep (Eq. 22): ``"images"``, the paper's Eq. 19 term
-#: ``||M (T_w I_p - I_ep)||^2`` in gradient units, or ``"profiles"``, Eq. 16's robust
-#: term on the profiles themselves (as EpAlone), each term over its own data energy.
-XU_EP_TERM = "images"
-
 
 #: Xu+Ep uses the automatic profiles whose calibrated confidence is at least this
 #: (:attr:`EdgeProfiles.confidence`), when enough of them remain: its edge-profile term
@@ -631,7 +501,7 @@ def _trusted(profiles, need: int):
     return profiles.select(trusted) if trusted.sum() >= need else profiles
 
 
-def blind_costs(level: _Level, motion: CameraMotion, lambda_f: float) -> tuple[float, float]:
+def blind_costs(level: Level, motion: CameraMotion, lambda_f: float) -> tuple[float, float]:
     """The L0 blind-deblurring cost (Eq. 21) of ``motion`` and of the identity, per pixel.
 
     ``E(k) = ||T_k f_k - g||^2 / N + lambda_f ||grad f_k||_0 / N`` with ``f_k`` the L0
@@ -664,103 +534,6 @@ def blind_costs(level: _Level, motion: CameraMotion, lambda_f: float) -> tuple[f
 
     identity = CameraMotion.identity(motion.model, level.intrinsics)
     return cost(motion.rescale(level.shape)), cost(identity)
-
-
-def _edge_images(level: _Level, profiles, scale: float, gain: float):
-    """``(I_p, I_ep, M)`` of Eq. 19 at this level (profiles in working coordinates)."""
-    from .prediction import edge_profile_image, prediction_image
-
-    i_p = prediction_image(profiles, level.shape, scale=scale) * level.blurred.dtype.type(gain)
-    i_ep, mask = edge_profile_image(level.blurred, profiles, scale=scale)
-    return i_p, i_ep, mask
-
-
-def _salient_gradients(latent_grad: np.ndarray, blurred: np.ndarray, fraction: float,
-                       window: int = 5) -> np.ndarray:
-    """Keep the latent gradients at salient, straight edges (Xu & Jia 2010 edge selection).
-
-    The usefulness map ``r = |sum_N grad g| / (sum_N |grad g| + eps)`` over a
-    ``window`` x ``window`` neighbourhood is near 1 at isolated straight edges and near
-    0 in texture and noise, where the gradients cancel. Latent gradients are kept
-    where ``r`` is above its median and, within each of four orientation bins, among
-    the ``fraction`` strongest -- so every edge direction informs the MDF.
-
-    Parameters
-    ----------
-    latent_grad : ndarray of shape (2, H, W)
-        ``(gx, gy)`` of the latent estimate.
-    blurred : ndarray of shape (H, W)
-        The observation at this scale.
-    fraction : float
-        Share of each orientation bin kept (grows over the iterations).
-    """
-    gx, gy = grad(blurred)
-    mag_g = np.hypot(gx, gy)
-    num = np.hypot(ndimage.uniform_filter(gx, window), ndimage.uniform_filter(gy, window))
-    usefulness = num / (ndimage.uniform_filter(mag_g, window) + 2e-3)
-    useful = usefulness > np.median(usefulness)
-    mag = np.hypot(latent_grad[0], latent_grad[1])
-    angle = np.mod(np.arctan2(latent_grad[1], latent_grad[0]), np.pi)
-    bins = np.minimum((angle / (np.pi / 4)).astype(int), 3)
-    keep = np.zeros(mag.shape, bool)
-    for b in range(4):
-        cand = useful & (bins == b) & (mag > 0)
-        if cand.any():
-            keep |= cand & (mag >= np.quantile(mag[cand], 1.0 - min(fraction, 1.0)))
-    return latent_grad * keep
-
-
-def _mdf_step(level: _Level, weights, active, latent, ep_data, lambda_w, lambda_ip, method,
-              salient: float = 1.0):
-    """One MDF update on the active poses (Eq. 16 for EpAlone, Eq. 22 otherwise).
-
-    ``ep_data`` is the level's :class:`~.profile_fit.RobustProfileFit` (EpAlone) or its
-    ``(I_p, I_ep, M)`` images (Xu+Ep), or None (Xu). The active set is fixed within a
-    level, so its tiles, PSF basis, measurement matrix and edge-profile term are built
-    once per level and kept in ``level.cache``.
-    """
-    key = active.tobytes()
-    if level.cache.get("key") != key:
-        poses = level.grid.poses(active)
-        level.cache = {"key": key}
-        if isinstance(ep_data, RobustProfileFit):
-            level.cache["measurement"] = measurement_matrix(ep_data.profiles, level.model,
-                                                            level.intrinsics, poses)
-        if method != "ep":
-            pgrid = level.patch_grid(poses)
-            level.cache.update(pgrid=pgrid, basis=psf_basis(level.model, level.intrinsics,
-                                                             poses, pgrid))
-    if (method != "ep" and ep_data is not None and lambda_ip > 0 and "ep" not in level.cache
-            and not isinstance(ep_data, RobustProfileFit)):
-        level.cache["ep"] = edge_profile_term(*ep_data, level.cache["pgrid"],
-                                              level.cache["basis"])
-    if method != "ep":
-        pgrid, basis = level.cache["pgrid"], level.cache["basis"]
-        taper = border_taper(level.shape, pgrid.psf_size // 2).astype(level.blurred.dtype)
-        f_grad = _salient_gradients(np.stack(grad(latent)), level.blurred, salient) * taper
-        g_grad = np.stack(grad(level.blurred)) * taper
-        if _GRADIENT_SMOOTHING > 0:  # the same linear filter on both sides keeps Eq. 22 exact
-            f_grad = ndimage.gaussian_filter(f_grad, (0, _GRADIENT_SMOOTHING, _GRADIENT_SMOOTHING))
-            g_grad = ndimage.gaussian_filter(g_grad, (0, _GRADIENT_SMOOTHING, _GRADIENT_SMOOTHING))
-        term = gradient_term(f_grad, g_grad, pgrid, basis)
-        if isinstance(ep_data, RobustProfileFit) and lambda_ip > 0:
-            # Eq. 22 with Eq. 16's term: each term over its own data energy
-            profile = ep_data.term(level.cache["measurement"])
-            term = (term.scaled(1.0 / max(term.constant, 1e-30))
-                    + profile.scaled(lambda_ip / max(profile.constant, 1e-30)))
-        elif "ep" in level.cache:  # Eq. 22: both terms in gradient units
-            term = term + level.cache["ep"].scaled(lambda_ip)
-    else:
-        term = ep_data.term(level.cache["measurement"])  # Eq. 16
-    # normalise by the data energy: lambda_w then means the same at every scale
-    term = term.scaled(1.0 / max(term.constant, 1e-30))
-    result = nonneg_lasso(term, lambda_w, weights[active], max_iter=_LASSO_MAX_ITER)
-    new = np.zeros(level.grid.counts)
-    new[active] = result.x
-    if not new.max() > 0:  # the L1 weight swallowed everything: keep the previous MDF
-        return weights, result.costs[-1] if result.costs else float("nan"), result.nit
-    cost = result.costs[-1] if result.costs else float("nan")
-    return _clean(new), cost, result.nit
 
 
 def estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
