@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from test_edges import _shaken
 
-from napari_edgecme.core.estimate import estimate_motion
+from napari_edgecme.core import estimate
+from napari_edgecme.core.estimate import EP_MAX_MISFIT, estimate_motion
 from napari_edgecme.core.measurement import measurement_matrix, profile_misfit, profile_term
 from napari_edgecme.core.metrics import motion_psf_ncc
 from napari_edgecme.core.profile_fit import (
@@ -100,19 +101,37 @@ def test_the_prior_is_the_confidence_floored(one_case_profiles):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_a_fifth_of_unblurred_profiles_bends_the_estimate_but_does_not_break_it(seed):
+def test_a_fifth_of_unblurred_profiles_bends_the_estimate_and_the_self_check_says_so(
+        seed, monkeypatch):
     """Measured PSF NCC: clean 0.89; a fifth unblurred: 0.64 / 0.61 reweighted (0.60 / 0.61
     with equal weights; with 30% unblurred the reweighting loses, 0.39-0.47 vs 0.51: it
-    needs a majority it can trust)."""
+    needs a majority it can trust). The misfit goes from 0.01 to 0.37: refused."""
     case, prof = _shaken("rotation", 11, 3)
     corrupted, _ = _with_false_profiles(prof, 0.2, seed)
     focal = case.motion.intrinsics.focal_px
     clean = estimate_motion(case.blurred, "ep", "rotation", 13, focal, profiles=prof, rng=0)
+    assert motion_psf_ncc(clean.motion, case.motion) >= 0.85
+    assert clean.info.profile_misfit < EP_MAX_MISFIT / 4
+    with pytest.raises(ValueError, match=r"EpAlone: the \d+ edge profiles do not agree on one "
+                                         r"camera motion \(\d+% of their energy"):
+        estimate_motion(case.blurred, "ep", "rotation", 13, focal, profiles=corrupted, rng=0)
+    monkeypatch.setattr(estimate, "EP_MAX_MISFIT", np.inf)  # what it would have returned
     dirty = estimate_motion(case.blurred, "ep", "rotation", 13, focal, profiles=corrupted,
                             rng=0)
-    assert motion_psf_ncc(clean.motion, case.motion) >= 0.85
     assert motion_psf_ncc(dirty.motion, case.motion) >= 0.55
-    assert dirty.info.profile_misfit > 2 * clean.info.profile_misfit  # the check sees them
+    assert dirty.info.profile_misfit > EP_MAX_MISFIT
+
+
+def test_profiles_of_one_orientation_are_refused_before_any_work():
+    """Normals within +-12 degrees (orientation balance 0.01): motion along the edges is
+    not measured (Eq. 11), so EpAlone says so instead of guessing it."""
+    case, prof = _shaken("rotation", 11, 3)
+    phi = np.mod(prof.normal_angle, np.pi)
+    parallel = prof.select(np.abs(phi - np.median(phi)) < np.radians(12))
+    assert len(parallel) >= 12
+    with pytest.raises(ValueError, match=r"nearly parallel normals .* is not measured"):
+        estimate_motion(case.blurred, "ep", "rotation", 13, case.motion.intrinsics.focal_px,
+                        profiles=parallel, rng=0)
 
 
 @pytest.fixture(scope="module")
@@ -121,3 +140,33 @@ def one_case_profiles():
     truth = case.motion.recentred()
     M = measurement_matrix(prof, truth.model, truth.intrinsics, truth.poses)
     return case, prof, truth, M
+
+
+# ---------------------------------------------------------------------------------------
+# Xu+Ep: the edge-profile term on top of Xu's L0 alternation (Eq. 22)
+# ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_xu_ep_beats_xu_on_an_edge_rich_scene(seed):
+    """Measured PSF NCC, Xu -> Xu+Ep: 0.62 -> 0.86 (seed 3), 0.59 -> 0.90 (seed 4)."""
+    case, _ = _shaken("rotation", 11, seed)
+    focal = case.motion.intrinsics.focal_px
+    ncc = {m: motion_psf_ncc(estimate_motion(case.blurred, m, "rotation", 13, focal, n_iter=3,
+                                             rng=0).motion, case.motion)
+           for m in ("xu", "xu+ep")}
+    assert ncc["xu+ep"] >= 0.8
+    assert ncc["xu+ep"] >= ncc["xu"] + 0.15
+
+
+def test_xu_ep_runs_as_xu_when_its_profiles_disagree():
+    """Two fifths of the profiles unblurred: EpAlone on them leaves 67% unexplained, so
+    the edge-profile term would pull the alternation the wrong way; it is dropped."""
+    case, prof = _shaken("rotation", 11, 3)
+    corrupted, _ = _with_false_profiles(prof, 0.4, seed=0)
+    with pytest.warns(UserWarning, match="do not agree on one camera motion"):
+        est = estimate_motion(case.blurred, "xu+ep", "rotation", 13,
+                              case.motion.intrinsics.focal_px, profiles=corrupted, n_iter=1,
+                              rng=0)
+    assert est.info.method == "xu" and est.info.profile_misfit > EP_MAX_MISFIT
+    assert "disagree" in est.info.message

@@ -16,23 +16,16 @@ from .deconv_prior import grad
 from .lasso import nonneg_lasso
 from .mdf import border_taper, edge_profile_term, gradient_term, psf_basis
 from .measurement import measurement_matrix
-from .profile_fit import RobustProfileFit
 from .pyramid import Level, clean_mdf
 
-__all__ = ["GRADIENT_SMOOTHING", "LASSO_MAX_ITER", "XU_EP_TERM", "edge_images",
-           "mdf_update", "salient_gradients"]
+__all__ = ["GRADIENT_SMOOTHING", "LASSO_MAX_ITER", "edge_images", "mdf_update",
+           "salient_gradients"]
 
 #: FISTA iterations per MDF update.
 LASSO_MAX_ITER = 200
 #: Standard deviation (px) of the Gaussian applied to both sides of the gradient term
 #: (the same linear filter on both keeps Eq. 22 exact).
 GRADIENT_SMOOTHING = 1.0
-#: The edge-profile term of Xu+Ep (Eq. 22): ``"images"``, the paper's Eq. 19 term
-#: ``||M (T_w I_p - I_ep)||^2`` in gradient units, or ``"profiles"``, Eq. 16's robust
-#: term on the profiles themselves (as EpAlone), each term over its own data energy.
-XU_EP_TERM = "images"
-
-
 def edge_images(level: Level, profiles, scale: float, gain: float):
     """``(I_p, I_ep, M)`` of Eq. 19 at this level (profiles in working coordinates)."""
     from .prediction import edge_profile_image, prediction_image
@@ -90,15 +83,14 @@ def mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_
     if level.cache.get("key") != key:
         poses = level.grid.poses(active)
         level.cache = {"key": key}
-        if isinstance(ep_data, RobustProfileFit):
+        if method == "ep":
             level.cache["measurement"] = measurement_matrix(ep_data.profiles, level.model,
                                                             level.intrinsics, poses)
         if method != "ep":
             pgrid = level.patch_grid(poses)
             level.cache.update(pgrid=pgrid, basis=psf_basis(level.model, level.intrinsics,
                                                              poses, pgrid))
-    if (method != "ep" and ep_data is not None and lambda_ip > 0 and "ep" not in level.cache
-            and not isinstance(ep_data, RobustProfileFit)):
+    if method != "ep" and ep_data is not None and lambda_ip > 0 and "ep" not in level.cache:
         level.cache["ep"] = edge_profile_term(*ep_data, level.cache["pgrid"],
                                               level.cache["basis"])
     if method != "ep":
@@ -110,12 +102,7 @@ def mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_
             f_grad = ndimage.gaussian_filter(f_grad, (0, GRADIENT_SMOOTHING, GRADIENT_SMOOTHING))
             g_grad = ndimage.gaussian_filter(g_grad, (0, GRADIENT_SMOOTHING, GRADIENT_SMOOTHING))
         term = gradient_term(f_grad, g_grad, pgrid, basis)
-        if isinstance(ep_data, RobustProfileFit) and lambda_ip > 0:
-            # Eq. 22 with Eq. 16's term: each term over its own data energy
-            profile = ep_data.term(level.cache["measurement"])
-            term = (term.scaled(1.0 / max(term.constant, 1e-30))
-                    + profile.scaled(lambda_ip / max(profile.constant, 1e-30)))
-        elif "ep" in level.cache:  # Eq. 22: both terms in gradient units
+        if "ep" in level.cache:  # Eq. 22: both terms in gradient units
             term = term + level.cache["ep"].scaled(lambda_ip)
     else:
         term = ep_data.term(level.cache["measurement"])  # Eq. 16
