@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
+from PIL import Image, PngImagePlugin
 
 from napari_edgecme.cli import main
 from napari_edgecme.core import synth
@@ -37,18 +38,22 @@ def photo(tmp_path_factory) -> Path:
     blurred = synth.quantize(np.clip(synth.add_noise(linear_to_srgb(case.blurred), 0.01,
                                                      np.random.default_rng(0)), 0, 1), 8)
     write_image(root / "sharp.png", sharp)
-    write_image(root / "blurred.png", blurred)
+    # as a camera's PNG export says it: with the sRGB chunk (untagged PNGs mean linear)
+    info = PngImagePlugin.PngInfo()
+    info.add(b"sRGB", b"\x00")
+    Image.fromarray(np.round(blurred * 255).astype(np.uint8)).save(root / "blurred.png",
+                                                                  pnginfo=info)
     tifffile.imwrite(root / "linear16.tif",
                      np.round(srgb_to_linear(blurred) * 65535).astype(np.uint16))
     case.motion.save(root / "truth.json")
     return root
 
 
-def test_auto_says_srgb_for_an_8bit_png_and_linear_for_a_16bit_tiff(photo, tmp_path, capsys):
+def test_auto_says_srgb_for_a_tagged_8bit_png_and_linear_for_a_16bit_tiff(photo, tmp_path, capsys):
     status, _, err = run(["deblur", photo / "blurred.png", "-o", tmp_path / "r.png", *FAST],
                          capsys)
     assert status == 0, err
-    assert "; gamma: srgb (8-bit PNG);" in err[-1]
+    assert "; gamma: srgb (8-bit PNG with an sRGB chunk);" in err[-1]
     status, _, err = run(["deblur", photo / "linear16.tif", "-o", tmp_path / "r.tif", *FAST],
                          capsys)
     assert status == 0, err
@@ -69,8 +74,8 @@ def test_deconvolve_in_linear_light_and_reencode(photo, tmp_path, capsys):
         status, _, err = run(["deconvolve", photo / "blurred.png", "--motion",
                               photo / "truth.json", "-o", out, "--gamma", gamma], capsys)
         assert status == 0, err
-        assert f"gamma: {'srgb (8-bit PNG)' if gamma == 'auto' else 'linear (given)'}" \
-            in err[-1]
+        said = "srgb (8-bit PNG with an sRGB chunk)" if gamma == "auto" else "linear (given)"
+        assert f"gamma: {said}" in err[-1]
         restored = read_image(out)
         assert restored.dtype == np.uint8  # 8 bits in, 8 bits out
         scores[gamma] = psnr(restored / 255.0, sharp)
@@ -96,7 +101,7 @@ def test_batch_takes_gamma(photo, tmp_path):
     lines = []
     result = deblur_many([photo / "blurred.png"], tmp_path / "out", "xu", "translation", 12,
                          workers=1, n_iter=1, log=lines.append)
-    assert result.ok and any("gamma: srgb (8-bit PNG)" in line for line in lines)
+    assert result.ok and any("gamma: srgb (8-bit PNG with an sRGB chunk)" in line for line in lines)
     lines.clear()
     result = deblur_many([photo / "blurred.png"], tmp_path / "lin", "xu", "translation", 12,
                          workers=1, n_iter=1, gamma="linear", log=lines.append)

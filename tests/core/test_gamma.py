@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import imageio.v3 as iio
 import numpy as np
 import pytest
@@ -69,8 +71,14 @@ def test_decide_gamma_from_the_file(tmp_path):
     tif32 = tmp_path / "capture-float.tif"
     tifffile.imwrite(tif32, rng.random((16, 16)).astype(np.float32))
 
+    jpg8 = tmp_path / "photo.jpg"
+    iio.imwrite(jpg8, (rng.random((16, 16, 3)) * 255).astype(np.uint8))
+
+    # an untagged 8-bit PNG without a camera: a render or an export, not a photo
     curve, why = decide_gamma(png8, iio.imread(png8))
-    assert curve == Gamma.srgb() and why == "8-bit PNG"
+    assert curve.is_linear and why == "8-bit PNG with no colour tag and no camera"
+    curve, why = decide_gamma(jpg8, iio.imread(jpg8))  # a JPEG is display-referred
+    assert curve == Gamma.srgb() and why == "8-bit JPEG"
     curve, why = decide_gamma(tif16, tifffile.imread(tif16))
     assert curve.is_linear and why == "16-bit TIFF"
     curve, why = decide_gamma(tif32, tifffile.imread(tif32))
@@ -122,8 +130,13 @@ def test_deblur_in_linear_light_restores_an_srgb_photo_better(seed):
     sharp, blurred = _srgb_case(seed)
     scores, infos = {}, {}
     for gamma in ("linear", "srgb"):
-        restored, estimate = deblur(blurred, "xu+ep", "translation", max_blur=14, n_iter=2,
-                                    rng=0, gamma=gamma)
+        with warnings.catch_warnings():
+            if gamma == "linear":  # encoded light bends the profiles: with seed 1 they
+                # disagree (17% left unexplained) and Xu+Ep says it runs as Xu
+                warnings.filterwarnings("ignore", "the .* edge profiles do not agree",
+                                        UserWarning)
+            restored, estimate = deblur(blurred, "xu+ep", "translation", max_blur=14,
+                                        n_iter=2, rng=0, gamma=gamma)
         assert restored.shape == blurred.shape and 0 <= restored.min() <= restored.max() <= 1
         scores[gamma] = aligned_scores(restored, sharp, rotation=False)[0]
         infos[gamma] = (estimate.info.gamma, estimate.info.gamma_reason)

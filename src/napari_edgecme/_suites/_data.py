@@ -21,7 +21,7 @@ SUITES = {"lai": "lai", "lai-srgb": "lai", "levin": "levin", "real": "paper-real
 #: (sRGB-encoded) [0, 1] scale, then 8-bit rounding -- the noise of the ``lai`` files.
 LAI_SRGB_NOISE = 0.01
 #: Changes whenever the rendering of ``lai-srgb`` does (the cache is keyed by it).
-_LAI_SRGB_VERSION = "1"
+_LAI_SRGB_VERSION = "1+srgb-chunk"
 CATEGORIES = ("manmade", "natural", "people", "saturated", "text")
 #: Levin's anchor protocol (its README): these 8 cases, 1/10 px shift, 24 px border.
 LEVIN_ANCHOR_CASES = tuple(f"im0{i}_ker0{k}" for i in range(1, 5) for k in (2, 5))
@@ -104,7 +104,7 @@ def lai_srgb_case(case: dict, cache: Path) -> dict:
     sources and this rendering are unchanged; :func:`lai_load` reads it. The reference is
     the sRGB-encoded ``sharp.png`` (what the user sees).
     """
-    from ..core.io import atomic_path, read_image, write_image
+    from ..core.io import atomic_path, read_image
     from ..core.motion import CameraMotion
     from ..core.photometry import linear_to_srgb, srgb_to_linear
     from ..core.synth import render_blur
@@ -123,8 +123,8 @@ def lai_srgb_case(case: dict, cache: Path) -> dict:
         blurred = linear_to_srgb(np.clip(render_blur(srgb_to_linear(sharp), truth), 0, 1))
         rng = np.random.default_rng([2016, zlib.crc32(case["name"].encode())])
         noisy = blurred + rng.normal(0.0, LAI_SRGB_NOISE, blurred.shape)
-        write_image(folder / "blurred.png", np.round(np.clip(noisy, 0, 1) * 255)
-                    .astype(np.uint8))
+        _write_srgb_png(folder / "blurred.png",
+                        np.round(np.clip(noisy, 0, 1) * 255).astype(np.uint8))
         for name in ("sharp.png", "truth.json", "case.json"):
             with atomic_path(folder / name) as tmp:
                 shutil.copyfile(src / name, tmp)
@@ -134,11 +134,23 @@ def lai_srgb_case(case: dict, cache: Path) -> dict:
     return {**case, "dir": str(folder), "source_dir": str(src)}
 
 
+def _write_srgb_png(path: Path, image: np.ndarray) -> None:
+    """An 8-bit PNG with the ``sRGB`` chunk that says how it is encoded (atomically)."""
+    from PIL import Image, PngImagePlugin
+
+    from ..core.io import atomic_path
+
+    info = PngImagePlugin.PngInfo()
+    info.add(b"sRGB", b"\x00")  # rendering intent: perceptual
+    with atomic_path(path) as tmp:
+        Image.fromarray(image).save(tmp, format="PNG", pnginfo=info)
+
+
 def case_gamma(case: dict, gamma="linear"):
     """The transfer curve a suite's case is run with, and why: ``gamma`` parsed
     (:func:`~..core.photometry.parse_gamma`); ``"auto"`` decides from the case's file as
-    ``edgecme deblur`` does (``lai``'s ``blurred.png``: 8-bit PNG -> srgb; ``levin``'s
-    ``.mat`` floats -> linear)."""
+    ``edgecme deblur`` does (``lai``'s untagged ``blurred.png``: linear; ``lai-srgb``'s,
+    with its ``sRGB`` chunk: srgb; ``levin``'s ``.mat`` floats: linear)."""
     from ..core.io import read_image
     from ..core.photometry import decide_gamma, parse_gamma
 

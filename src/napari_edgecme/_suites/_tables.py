@@ -105,7 +105,7 @@ def truth_markdown(result: dict) -> str:
     suite, methods = result["suite"], result["methods"]
     keys = (*methods, "oracle", "centred")
     rows, summary = result["cases"], result["summary"]
-    group = "category" if suite == "lai" else "kernel"
+    group = "category" if suite.startswith("lai") else "kernel"
     lines = [f"# `{suite}` suite{' (quick)' if result['quick'] else ''}: "
              f"{len(rows)} cases", "", machine_line(result["machine"])
              + f"; {result['seconds'] / 60:.1f} min, {result['jobs']} case(s) at a time.",

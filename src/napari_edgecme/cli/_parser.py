@@ -301,12 +301,13 @@ def build_parser() -> argparse.ArgumentParser:
                 "written as Markdown and JSON. Each run is a fresh Python process, so its "
                 "peak memory is its own. --suite lai, levin, real: the suites on real "
                 "camera shake, real captures and real photos.")
-    p.add_argument("--suite", choices=("synthetic", "lai", "levin", "real"),
+    p.add_argument("--suite", choices=("synthetic", "lai", "lai-srgb", "levin", "real"),
                    default="synthetic",
                    help="synthetic: the project's own shakes (quality and speed); lai: real "
-                        "gyro shakes on natural photos, with the true motion; levin: real "
-                        "captured uniform blurs; real: the paper's real photos, side-by-side "
-                        "sheets (default: %(default)s)")
+                        "gyro shakes on natural photos, with the true motion; lai-srgb: the "
+                        "same shakes rendered in linear light and sRGB-encoded, as a camera "
+                        "does; levin: real captured uniform blurs; real: the paper's real "
+                        "photos, side-by-side sheets (default: %(default)s)")
     p.add_argument("--data", type=Path, default=None, metavar="DIR",
                    help="the suite's data folder (default: ../shared/data/<suite>, "
                         "paper-real for real)")

@@ -310,9 +310,12 @@ def decide_gamma(path=None, image=None) -> tuple[Gamma, str]:
        the primaries are not converted), a PNG ``sRGB`` chunk (srgb) or ``gAMA`` chunk
        (1.0 -> linear, 1/2.2 -> power 2.2), EXIF ColorSpace = 1 (srgb; 0xFFFF with the
        interoperability index R03 is Adobe RGB).
-    3. Otherwise the bit depth: 8-bit integers (JPEG, PNG, BMP, TIFF: a display-referred
-       photo) -> srgb; 16-bit or floating point (a scientific or raw-converted capture)
-       -> linear.
+    3. Otherwise where it comes from: an 8-bit JPEG (a camera's or a phone's format,
+       display-referred by definition), or an 8-bit file of another format whose EXIF
+       names a camera -> srgb; an untagged 8-bit PNG, TIFF or BMP with no camera in it
+       (synthetic renders, benchmark images, scientific exports -- the ``lai`` set blurs
+       its encoded values), 16-bit or floating point -> linear. An untagged photo saved
+       as PNG needs ``gamma="srgb"``.
 
     Parameters
     ----------
@@ -357,8 +360,10 @@ def decide_gamma(path=None, image=None) -> tuple[Gamma, str]:
         return (Gamma.power(ADOBE_RGB_GAMMA),
                 f"{depth} {fmt}{camera}, EXIF Adobe RGB: a power law of about 2.2; "
                 "primaries not converted")
-    if depth in ("8-bit", "1-bit"):
+    if depth == "8-bit" and (fmt == "JPEG" or camera):
         return Gamma.srgb(), f"{depth} {fmt}{camera}"
+    if depth == "8-bit":
+        return Gamma.linear(), f"{depth} {fmt} with no colour tag and no camera"
     note = f", ICC profile '{tags['icc']}' not recognised" if tags.get("icc") else ""
     return Gamma.linear(), f"{depth} {fmt}{camera}{note}"
 
