@@ -40,7 +40,7 @@ import time
 import numpy as np
 
 from napari_edgecme._worker import peak_rss_mib
-from napari_edgecme.core import deconv
+from napari_edgecme.core import deconv, deconv_blocks
 from napari_edgecme.core.camera import Intrinsics
 from napari_edgecme.core.metrics import aligned_psnr, psnr
 from napari_edgecme.core.motion import CameraMotion
@@ -260,7 +260,7 @@ def measure(spec: dict) -> dict:
                            **spec.get("params", {}))
     result = {"wall": wall, "cpu": cpu, "records": len(gaps), "max_gap": max(gaps),
               "maxrss_gib": peak_rss_mib() / 1024,
-              "psf": deconv._psf_extent(motion), "stride": deconv._auto_stride(motion)}
+              "psf": deconv_blocks.psf_extent(motion), "stride": deconv_blocks.auto_stride(motion)}
     if spec["score"]:
         sharp = np.load(spec["stem"] + "-sharp.npy")
         result["gain"] = aligned_psnr(out, sharp) - aligned_psnr(blurred, sharp)

@@ -181,7 +181,7 @@ def test_patch_windows_sum_to_one(shape, stride, overlap):
 
 def test_eff_matches_exact_warp_sum_on_a_31px_rotational_shake():
     # 256 px (a quarter of the warping of the former 512 px) with 32 px tiles, the size the
-    # deconvolution picks for this motion (deconv._auto_stride). Measured: 1.8 % here; the
+    # deconvolution picks for this motion (deconv_blocks.auto_stride). Measured: 1.8 % here; the
     # operator's default 128 px tiles (2 x 2 on this frame) give 3.2 %, and at 512 px
     # 1.3 % (default tiles) and 0.9 % (32 px).
     image = sample_image("camera", 256)

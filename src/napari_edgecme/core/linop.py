@@ -12,7 +12,7 @@ combine into new operators, so a normal operator is written as in the paper,
     data = Crop(domain_shape, inner) @ blur  # M T
     normal = lam * (data.T @ data) + beta * (gradient.T @ gradient)
 
-and :func:`~napari_edgecme.core.deconv_solvers.conjugate_gradient` and FISTA
+and :func:`~napari_edgecme.core.cg.conjugate_gradient` and FISTA
 (through :class:`~napari_edgecme.core.lasso.QuadraticTerm`) take operators. Because
 every adjoint is an operator's ``adjoint``, one parametrised dot test
 (:func:`dottest`, ``tests/core/test_operators.py``) covers all of them, compositions
