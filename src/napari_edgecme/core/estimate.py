@@ -43,7 +43,7 @@ from .latent import iter_l0_latent
 from .mdf_update import edge_images, mdf_update
 from .motion import CameraMotion
 from .photometry import LUMA
-from .profile_fit import RobustProfileFit
+from .profile_fit import EP_MAX_MISFIT, RobustProfileFit, check_coverage
 from .progress import Progress, StopRequested, drive
 from .pyramid import Level, dilate, initial_weights, pyramid_scales, resize
 
@@ -206,32 +206,6 @@ def _repeating(gen, record: Progress):
 #: Xu, with a warning) when they leave more than :data:`EP_MAX_MISFIT` unexplained.
 XU_EP_GATE = True
 
-#: EpAlone refuses when its estimate leaves more than this share of the edge profiles'
-#: energy unexplained (:attr:`EstimateInfo.profile_misfit`): the profiles then measure
-#: something else than one camera motion (false profiles, a moving subject, a blur
-#: beyond what the set resolves), and deconvolving with the estimate does more harm
-#: than good. Chosen on the 60 ``lai`` cases as a whole (see ``benchmarks/results``).
-EP_MAX_MISFIT = 0.10
-
-
-def _check_coverage(profiles) -> None:
-    """Refuse (EpAlone) a profile set whose normals are nearly parallel (Eq. 11).
-
-    Each profile measures the PSF only along its normal, so such a set cannot see the
-    motion along the edges; the threshold is the one at which the coverage summary
-    already warns (:data:`~.profiles.POOR_BALANCE`).
-    """
-    from .profiles import POOR_BALANCE
-
-    cov = profiles.coverage()
-    if cov["orientation_balance"] < POOR_BALANCE:
-        raise ValueError(
-            f"EpAlone: the {len(profiles)} edge profiles have nearly parallel normals "
-            f"(orientation balance {cov['orientation_balance']:.2f}, under "
-            f"{POOR_BALANCE:g}): motion along {cov['weakest_direction_deg']:.0f} deg is not "
-            "measured; pick edges of other orientations or try method 'xu+ep'")
-
-
 def _check_lambda(value, name, default, allow_zero=False):
     if value is None:
         return default
@@ -367,7 +341,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             total -= 1
         else:
             if method == "ep":
-                _check_coverage(work_profiles)
+                check_coverage(work_profiles)
             step += 1
             yield Progress("estimate", step, total, f"{len(work_profiles)} edge profiles",
                            n_scales=len(scales))

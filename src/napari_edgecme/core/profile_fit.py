@@ -1,4 +1,4 @@
-"""EpAlone's robust edge-profile fit: Eq. 16 with a weight per profile, reweighted.
+"""EpAlone's robust edge-profile fit (Eq. 16 with a weight per profile) and self-checks.
 
 Automatic extraction keeps some false profiles (on lai, about one in five has a
 derivative that correlates under 0.8 with the true PSF's projection), and a least-squares
@@ -25,9 +25,10 @@ from scipy import sparse
 
 from .lasso import QuadraticTerm
 from .measurement import profile_misfit, profile_term
-from .profiles import EdgeProfiles
+from .profiles import POOR_BALANCE, EdgeProfiles
 
-__all__ = ["MISFIT_SCALE_FLOOR", "PRIOR_FLOOR", "RobustProfileFit"]
+__all__ = ["EP_MAX_MISFIT", "MISFIT_SCALE_FLOOR", "PRIOR_FLOOR", "RobustProfileFit",
+           "check_coverage"]
 
 #: Smallest prior weight of a profile (its confidence is floored here).
 PRIOR_FLOOR = 0.1
@@ -82,3 +83,27 @@ class RobustProfileFit:
         energy = (d ** 2).sum(1)
         return float(np.sum(profile_misfit(matrix, self.profiles, w) * energy)
                      / max(float(energy.sum()), 1e-300))
+
+
+#: EpAlone refuses when its estimate leaves more than this share of the edge profiles'
+#: energy unexplained (:attr:`~.estimate.EstimateInfo.profile_misfit`): the profiles then measure
+#: something else than one camera motion (false profiles, a moving subject, a blur
+#: beyond what the set resolves), and deconvolving with the estimate does more harm
+#: than good. Chosen on the 60 ``lai`` cases as a whole (see ``benchmarks/results``).
+EP_MAX_MISFIT = 0.10
+
+
+def check_coverage(profiles: EdgeProfiles) -> None:
+    """Refuse (EpAlone) a profile set whose normals are nearly parallel (Eq. 11).
+
+    Each profile measures the PSF only along its normal, so such a set cannot see the
+    motion along the edges; the threshold is the one at which the coverage summary
+    already warns (:data:`~.profiles.POOR_BALANCE`).
+    """
+    cov = profiles.coverage()
+    if cov["orientation_balance"] < POOR_BALANCE:
+        raise ValueError(
+            f"EpAlone: the {len(profiles)} edge profiles have nearly parallel normals "
+            f"(orientation balance {cov['orientation_balance']:.2f}, under "
+            f"{POOR_BALANCE:g}): motion along {cov['weakest_direction_deg']:.0f} deg is not "
+            "measured; pick edges of other orientations or try method 'xu+ep'")
