@@ -77,8 +77,8 @@ def test_decide_gamma_from_the_file(tmp_path):
     # an untagged 8-bit PNG without a camera: a render or an export, not a photo
     curve, why = decide_gamma(png8, iio.imread(png8))
     assert curve.is_linear and why == "8-bit PNG with no colour tag and no camera"
-    curve, why = decide_gamma(jpg8, iio.imread(jpg8))  # a JPEG is display-referred
-    assert curve == Gamma.srgb() and why == "8-bit JPEG"
+    curve, why = decide_gamma(jpg8, iio.imread(jpg8))  # a web copy: no EXIF, no tag
+    assert curve.is_linear and why == "8-bit JPEG with no colour tag and no camera"
     curve, why = decide_gamma(tif16, tifffile.imread(tif16))
     assert curve.is_linear and why == "16-bit TIFF"
     curve, why = decide_gamma(tif32, tifffile.imread(tif32))

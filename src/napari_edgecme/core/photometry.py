@@ -310,12 +310,15 @@ def decide_gamma(path=None, image=None) -> tuple[Gamma, str]:
        the primaries are not converted), a PNG ``sRGB`` chunk (srgb) or ``gAMA`` chunk
        (1.0 -> linear, 1/2.2 -> power 2.2), EXIF ColorSpace = 1 (srgb; 0xFFFF with the
        interoperability index R03 is Adobe RGB).
-    3. Otherwise where it comes from: an 8-bit JPEG (a camera's or a phone's format,
-       display-referred by definition), or an 8-bit file of another format whose EXIF
-       names a camera -> srgb; an untagged 8-bit PNG, TIFF or BMP with no camera in it
-       (synthetic renders, benchmark images, scientific exports -- the ``lai`` set blurs
-       its encoded values), 16-bit or floating point -> linear. An untagged photo saved
-       as PNG needs ``gamma="srgb"``.
+    3. Otherwise where it comes from: an 8-bit file whose EXIF names a camera (Make or
+       Model) -> srgb; an untagged 8-bit file with no camera in it -> linear, as are
+       16-bit and floating-point files. Untagged 8-bit images are often not what a
+       camera recorded: synthetic renders and benchmark sets (``lai`` blurs its encoded
+       values), web copies stripped of their EXIF, photos that were processed after the
+       blur. On the paper's real photos (web JPEGs without EXIF) deconvolving in linear
+       light rang where the encoded values did not (``car_forest``, with one and the
+       same motion), so only a file that says where it comes from is linearised; say
+       ``gamma="srgb"`` for the others.
 
     Parameters
     ----------
@@ -360,7 +363,7 @@ def decide_gamma(path=None, image=None) -> tuple[Gamma, str]:
         return (Gamma.power(ADOBE_RGB_GAMMA),
                 f"{depth} {fmt}{camera}, EXIF Adobe RGB: a power law of about 2.2; "
                 "primaries not converted")
-    if depth == "8-bit" and (fmt == "JPEG" or camera):
+    if depth == "8-bit" and camera:
         return Gamma.srgb(), f"{depth} {fmt}{camera}"
     if depth == "8-bit":
         return Gamma.linear(), f"{depth} {fmt} with no colour tag and no camera"
