@@ -118,7 +118,7 @@ class CameraMotionWidget(QWidget):
             "sharpened estimate of the photo with a fit of the blur to straight edges "
             "(Xu+Ep, paper Eq. 22), best in general. Sharpened image only: the baseline "
             "(Xu, L0 latent image, Eq. 21). Edge profiles only: fastest, needs at least "
-            "12 clean straight edges (EpAlone, Eq. 19)")
+            "12 clean straight edges (EpAlone, Eq. 16)")
         self.model_combo = ComboBox(label="model", choices=MODEL_CHOICES, value="rotation")
         self.model_combo.native.setToolTip(
             "How the camera may have moved. Turned in 3-D: hand shake, the blur differs "

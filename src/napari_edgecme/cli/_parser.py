@@ -72,7 +72,7 @@ def _add_common(parser) -> None:
 def _add_estimation(parser, profiles: bool = True) -> None:
     group = parser.add_argument_group("motion estimation")
     group.add_argument("--method", choices=_estimate.METHODS, default="xu+ep",
-                       help="ep = EpAlone (edge profiles only, Eq. 19), xu = Xu et al. L0 "
+                       help="ep = EpAlone (edge profiles only, Eq. 16), xu = Xu et al. L0 "
                             "(the baseline), xu+ep = both (Eq. 22) (default: %(default)s)")
     group.add_argument("--model", choices=MODELS, default="rotation",
                        help="pose model: uniform blur, in-plane shake, or 3-D camera "
