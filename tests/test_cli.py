@@ -273,13 +273,11 @@ def test_batch_lam_reaches_each_photos_deconvolution_as_lambda_f():
     from napari_edgecme.cli._options import deconvolution_params
 
     args = build_parser().parse_args(["batch", "x.png", "-o", "out", "--lam", "3000"])
-    handed = deconvolution_params(args, "hyperlaplacian")
-    assert handed == {"lam": 3000.0}  # deblur_many's documented deconv_params key
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)  # deblur_many's check of 'lam'
+        warnings.simplefilter("error", DeprecationWarning)  # our own CLI never warns
+        handed = deconvolution_params(args, "hyperlaplacian")
+        assert handed == {"lambda_f": 2.0 / 3000.0}  # what deblur_many is handed
         options = batch_options("xu", "inplane", None, None, "hyperlaplacian", handed, {})
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", DeprecationWarning)
         assert deconvolution_params(options, "hyperlaplacian") == {"lambda_f": 2.0 / 3000.0}
 
 

@@ -92,7 +92,8 @@ def deblur_many(paths, out_dir, method: str = "xu+ep", model: str = "rotation",
         else the 35 mm-equivalent default).
     deconvolution : {"hyperlaplacian", "rl", "wiener"}
     deconv_params : dict, optional
-        ``lam``, ``iterations`` or ``nsr`` of the deconvolution.
+        ``lambda_f``, ``iterations`` or ``nsr`` of the deconvolution (``lam``, deprecated:
+        ``lambda_f = 2 / lam``).
     gamma : {"auto", "linear", "srgb"}, float or Gamma
         Each photo's transfer curve, as ``edgecme deblur --gamma``: the motion is
         estimated and the photo deconvolved in linear light and the output re-encoded as

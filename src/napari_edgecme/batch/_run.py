@@ -44,13 +44,16 @@ def batch_options(method, model, max_blur, focal_px, deconvolution, deconv_param
         raise ValueError(f"deconv_params must be a dict; got {type(deconv_params).__name__}")
     deconvolution = check_choice(deconvolution, "deconvolution", _deconv.METHODS)
     _deconv.check_deconvolution_parameters(deconvolution, dict(deconv_params or {}))
+    handed = dict(deconv_params or {})
+    if "lambda_f" in handed:  # the per-photo options speak the CLI's --lam (= 2 / lambda_f)
+        handed["lam"] = 2.0 / handed.pop("lambda_f")
     options = argparse.Namespace(
         gamma=parse_gamma(gamma),
         method=check_choice(method, "method", _estimate.METHODS),
         model=check_choice(model, "model", MODELS), max_blur=max_blur,
         focal_px=focal_px, seed=int(seed), profiles=None, deconvolution=deconvolution,
         **{name: params.get(name) for name in ESTIMATION_PARAMS},
-        **{name: (deconv_params or {}).get(name) for name in ("lam", "iterations", "nsr")})
+        **{name: handed.get(name) for name in ("lam", "iterations", "nsr")})
     deconvolution_params(options, deconvolution)
     return options
 

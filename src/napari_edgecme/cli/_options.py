@@ -64,8 +64,7 @@ def deconvolution_params(args, method: str) -> dict:
         if name not in allowed:
             raise CLIError(f"{option[name]} does not apply to the {method!r} deconvolution")
     # --lam is the data weight; the engine's keyword is lambda_f = 2 / lam ('lam' is
-    # deprecated there). 'edgecme batch' hands these to deblur_many(deconv_params=...),
-    # which documents and reads 'lam', and calls this again for each photo (converted then)
-    if "lam" in params and getattr(args, "command", None) != "batch":
+    # deprecated there), and deblur_many takes lambda_f too
+    if "lam" in params:
         params["lambda_f"] = 2.0 / params.pop("lam")
     return params
