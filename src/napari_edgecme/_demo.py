@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._report import METHOD_NAMES
+from ._report import METHOD_NAMES, check_out_folder
 from .core import io as _io
 from .core._validation import first_line
 from .core.deconv import iter_deconvolve
@@ -84,14 +84,6 @@ class DemoResult:
     summary: dict = field(default_factory=dict)
 
 
-def _check_folder(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
-    if not out.exists() and not out.parent.is_dir():
-        raise ValueError(f"cannot create the demo folder {out}: its parent folder "
-                         f"{out.parent} does not exist")
-
-
 
 
 def run_demo(out="edgecme-demo", *, size: int | None = None, seed: int = 0,
@@ -130,7 +122,7 @@ def run_demo(out="edgecme-demo", *, size: int | None = None, seed: int = 0,
     if size < 64:
         raise ValueError(f"demo size must be at least 64 px; got {size}")
     out = Path(out)
-    _check_folder(out)
+    check_out_folder(out, "demo")
     t_start = time.perf_counter()
 
     extent = float(max(5, round(EXTENT_FRACTION * size)))

@@ -7,6 +7,7 @@ import os
 import platform
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -110,3 +111,15 @@ def memory_note(baseline) -> str:
             "inherits the parent's high-water mark through fork and exec). It includes the "
             "interpreter, the libraries and the loaded input, i.e. the baseline of a process "
             f"that only imports the engine and loads the input{base}.")
+
+
+def check_out_folder(out: Path, what: str) -> None:
+    """Refuse, in one line, an ``--out`` that is a file or whose parent folder is missing.
+
+    ``what`` names the folder in the message (``"benchmark"``, ``"demo"``).
+    """
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+    if not out.exists() and not out.parent.is_dir():
+        raise ValueError(f"cannot create the {what} folder {out}: its parent folder "
+                         f"{out.parent} does not exist")

@@ -50,7 +50,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from .._report import load_average, machine_info, markdown_table
+from .._report import check_out_folder, load_average, machine_info, markdown_table
 from .._worker import run_job
 from ._config import (
     MAX_BLUR_FACTOR,
@@ -109,11 +109,7 @@ def run_bench(out="edgecme-bench", *, quick: bool = False, parts=("quality", "sp
     from ..core import io as _io
 
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
-    if not out.exists() and not out.parent.is_dir():
-        raise ValueError(f"cannot create the benchmark folder {out}: its parent folder "
-                         f"{out.parent} does not exist")
+    check_out_folder(out, "benchmark")
     unknown = set(parts) - {"quality", "speed"}
     if unknown:
         raise ValueError(f"unknown benchmark part(s) {sorted(unknown)}; use quality, speed")

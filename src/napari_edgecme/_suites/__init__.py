@@ -63,7 +63,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._report import load_average, machine_info
+from .._report import check_out_folder, load_average, machine_info
 from ._cases import FAITHFUL_NCC, METHODS, profile_measures, run_real_photo, run_truth_case
 from ._data import (
     CATEGORIES,
@@ -131,11 +131,7 @@ def run_suite(suite: str, out="edgecme-bench", *, data=None, quick: bool = False
         raise ValueError(f"no data for suite {suite!r}: {where} is not a folder "
                          "(pass --data DIR)")
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
-    if not out.exists() and not out.parent.is_dir():
-        raise ValueError(f"cannot create the benchmark folder {out}: its parent folder "
-                         f"{out.parent} does not exist")
+    check_out_folder(out, "benchmark")
     from ..core.photometry import parse_gamma
 
     parse_gamma(gamma)  # a bad value fails before any case runs
