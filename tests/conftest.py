@@ -37,6 +37,23 @@ def rng():
     return np.random.default_rng(12345)
 
 
+@pytest.fixture
+def principal_axis():
+    """``f(weights) -> (angle, elongation)``: the direction (degrees, of the row/col axes)
+    and elongation of a weight image's second moments -- the streak of a drawn PSF."""
+    def measure(weights: np.ndarray) -> tuple[float, float]:
+        r, c = np.indices(weights.shape, dtype=float)
+        total = weights.sum()
+        mr, mc = (weights * r).sum() / total, (weights * c).sum() / total
+        crr = (weights * (r - mr) ** 2).sum() / total
+        ccc = (weights * (c - mc) ** 2).sum() / total
+        crc = (weights * (r - mr) * (c - mc)).sum() / total
+        low, high = np.linalg.eigvalsh([[crr, crc], [crc, ccc]])
+        return float(np.degrees(0.5 * np.arctan2(2 * crc, ccc - crr))), high / max(low, 1e-12)
+
+    return measure
+
+
 try:  # property tests: the same examples on every run (CI must not be a lottery);
     # HYPOTHESIS_PROFILE=explore draws fresh ones when hunting for bugs
     from hypothesis import HealthCheck, settings

@@ -16,18 +16,6 @@ from napari_edgecme.core.psf_view import (
 )
 
 
-def _principal_axis(weights: np.ndarray) -> tuple[float, float]:
-    """Angle (degrees, of the row/col axes) and elongation of a weight image's 2nd moments."""
-    r, c = np.indices(weights.shape, dtype=float)
-    total = weights.sum()
-    mr, mc = (weights * r).sum() / total, (weights * c).sum() / total
-    crr = (weights * (r - mr) ** 2).sum() / total
-    ccc = (weights * (c - mc) ** 2).sum() / total
-    crc = (weights * (r - mr) * (c - mc)).sum() / total
-    low, high = np.linalg.eigvalsh([[crr, crc], [crc, ccc]])
-    return float(np.degrees(0.5 * np.arctan2(2 * crc, ccc - crr))), high / max(low, 1e-12)
-
-
 @pytest.fixture(scope="module")
 def slide_and_turn():
     """A slide plus a turn about the lens axis: streaks of different directions and lengths."""
@@ -71,7 +59,7 @@ def test_the_title_states_the_motion_the_enlargement_and_the_scale(figure, slide
     assert figure.glyphs.points.shape == (5 * 7, 2)  # square cells, 5 on the short side
 
 
-def test_the_drawn_streaks_point_along_the_psfs(figure):
+def test_the_drawn_streaks_point_along_the_psfs(figure, principal_axis):
     """Each glyph's principal axis, measured in the PNG, is its PSF's within 10 degrees."""
     png = _read_png(figure.path)
     glyphs = figure.glyphs
@@ -88,10 +76,10 @@ def test_the_drawn_streaks_point_along_the_psfs(figure):
         drawn = np.clip(tile[..., 0] - tile[..., 2], 0, None)
         gray = tile[0, 0]
         assert gray[0] == pytest.approx(gray[2], abs=0.02) and gray[0] < 0.5
-        true_angle, elongation = _principal_axis(psf)
+        true_angle, elongation = principal_axis(psf)
         if elongation < 3:  # a round blob has no direction to compare
             continue
-        angle, drawn_elongation = _principal_axis(drawn)
+        angle, drawn_elongation = principal_axis(drawn)
         diff = abs((angle - true_angle + 90) % 180 - 90)
         assert diff < 10, (r0, c0, angle, true_angle)
         assert drawn_elongation > 2

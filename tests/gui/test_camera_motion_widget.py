@@ -213,19 +213,7 @@ def test_rgb_images_are_estimated(qtbot, viewer_model, edge_case, wait_for_run):
     assert viewer_model.layers["colour PSF field"].data.shape == (112, 112, 4)
 
 
-def _principal_axis(weights: np.ndarray) -> tuple[float, float]:
-    """Angle (degrees, of the row/col axes) and elongation of a weight image's 2nd moments."""
-    r, c = np.indices(weights.shape, dtype=float)
-    total = weights.sum()
-    mr, mc = (weights * r).sum() / total, (weights * c).sum() / total
-    crr = (weights * (r - mr) ** 2).sum() / total
-    ccc = (weights * (c - mc) ** 2).sum() / total
-    crc = (weights * (r - mr) * (c - mc)).sum() / total
-    low, high = np.linalg.eigvalsh([[crr, crc], [crc, ccc]])
-    return float(np.degrees(0.5 * np.arctan2(2 * crc, ccc - crr))), high / max(low, 1e-12)
-
-
-def test_the_psf_field_shows_each_streak_enlarged_in_its_direction():
+def test_the_psf_field_shows_each_streak_enlarged_in_its_direction(principal_axis):
     """Each drawn glyph's principal axis is its PSF's within 10 degrees (issue 15, item 6)."""
     cam = Intrinsics.from_image_shape((300, 400))
     t = np.linspace(0.0, 1.0, 40)
@@ -242,10 +230,10 @@ def test_the_psf_field_shows_each_streak_enlarged_in_its_direction():
         tile = glyphs.rgba[r0:r0 + side, c0:c0 + side]
         assert tile.shape[:2] == (side, side)  # every tile inside the image here
         drawn = np.clip((tile[..., 0] - BACKGROUND) / (1 - BACKGROUND), 0, 1)  # red channel
-        true_angle, elongation = _principal_axis(psf)
+        true_angle, elongation = principal_axis(psf)
         if elongation < 3:  # a round blob has no direction to compare
             continue
-        angle, _ = _principal_axis(drawn)
+        angle, _ = principal_axis(drawn)
         diff = abs((angle - true_angle + 90) % 180 - 90)
         assert diff < 10, (r0, c0, angle, true_angle)
         checked += 1
