@@ -505,8 +505,7 @@ class _CoarseToFine:
                                                    salient=_SALIENT_START * 1.1 ** min(it, 24))
                 if method == "ep":  # IRLS: each profile weighed by its agreement
                     ep_data.update(level.cache["measurement"], weights[active])
-                    self.profile_misfit = ep_data.relative_misfit(level.cache["measurement"],
-                                                                  weights[active])
+                    self.profile_misfit = ep_data.relative_misfit()
                 self.motion = level.motion(weights)
                 record.costs.append(cost)
                 record.active_poses.append(int(active.sum()))

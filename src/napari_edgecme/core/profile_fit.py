@@ -74,15 +74,16 @@ class RobustProfileFit:
         self.weights = self.prior / (1.0 + (self.misfit / scale) ** 2)
         return self.weights
 
-    def relative_misfit(self, matrix: sparse.csr_matrix, w: np.ndarray) -> float:
-        """``sum_i ||M_i w - dE_i||^2 / sum_i ||dE_i||^2`` over all profiles, unweighted.
+    def relative_misfit(self) -> float:
+        """``sum_i ||M_i w - dE_i||^2 / sum_i ||dE_i||^2`` over all profiles, unweighted,
+        for the MDF of the last :meth:`update`.
 
         How much of the profiles the motion leaves unexplained: the self-check of EpAlone.
         """
-        d = np.asarray(self.profiles.derivatives, np.float64)
-        energy = (d ** 2).sum(1)
-        return float(np.sum(profile_misfit(matrix, self.profiles, w) * energy)
-                     / max(float(energy.sum()), 1e-300))
+        if self.misfit is None:
+            raise ValueError("relative_misfit needs an update() first")
+        energy = (np.asarray(self.profiles.derivatives, np.float64) ** 2).sum(1)
+        return float(np.sum(self.misfit * energy) / max(float(energy.sum()), 1e-300))
 
 
 #: EpAlone refuses when its estimate leaves more than this share of the edge profiles'
