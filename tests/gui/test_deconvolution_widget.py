@@ -96,7 +96,9 @@ def test_an_rgb_image_with_a_motion_from_a_json_file(qtbot, viewer_model, photo_
     restored = viewer_model.layers["colour deblurred"]
     assert restored.rgb and restored.data.shape == (96, 96, 3)
     assert restored.data.dtype == np.float32
-    assert restored.metadata["edgecme_deconvolution"] == {"method": "rl", "iterations": 10}
+    assert restored.metadata["edgecme_deconvolution"] == {"method": "rl", "iterations": 10,
+                                                          "gamma": "linear",
+                                                          "gamma_reason": "given"}
     assert any("loaded truth.json" in text for text in notifications.texts("info"))
 
 

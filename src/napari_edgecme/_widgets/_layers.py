@@ -14,6 +14,7 @@ from ..core.io import exif_focal_35mm
 from ..core.motion import CameraMotion
 
 __all__ = [
+    "ESTIMATE_KEY",
     "MOTION_KEY",
     "PROFILES_KEY",
     "SOURCE_KEY",
@@ -27,6 +28,8 @@ __all__ = [
     "spatial_kwargs",
 ]
 
+#: Layer-metadata key of a summary of an estimation run (method, parameters, gamma, timing).
+ESTIMATE_KEY = "edgecme_estimate"
 #: Layer-metadata key of a camera motion: the JSON dict of ``CameraMotion.to_dict()``
 #: (a dict, not the object, so that it survives saving the layer).
 MOTION_KEY = "edgecme_motion"

@@ -14,6 +14,13 @@ Results, aligned with the input image (same scale and translate):
 * ``"<image> latent"`` (Xu, Xu+Ep; hidden): the last latent estimate;
 * a plot of the motion density function in pose space (marker size = weight);
 * "Save motion…" writes the motion file (JSON).
+
+The "gamma" choice (:class:`._gamma.GammaControl`: linear, the default for layers; sRGB;
+a power law; auto from the layer's source file) says how the layer's values encode
+light: the estimation runs on the image in linear light
+(:func:`._gamma.estimate_in_linear_light`), the latent image and its previews are
+shown encoded as the photo is, and ``estimate.info`` (and the layers'
+``metadata["edgecme_estimate"]``) record the curve and why.
 """
 
 from __future__ import annotations
@@ -44,11 +51,13 @@ from superqt import QCollapsible
 from ..core._validation import first_line
 from ..core.camera import DEFAULT_FOCAL_35MM, param_names
 from ..core.edges import EdgeProfiles
-from ..core.estimate import DEFAULTS, MotionEstimate, iter_estimate_motion
+from ..core.estimate import DEFAULTS, MotionEstimate
 from ..core.motion import CameraMotion
 from ..core.progress import Progress
 from ._dock import dock_layout
+from ._gamma import GIVEN, Estimated, GammaControl, estimate_in_linear_light, gamma_note
 from ._layers import (
+    ESTIMATE_KEY,
     MOTION_KEY,
     PROFILES_KEY,
     SOURCE_KEY,
@@ -80,8 +89,6 @@ ZOOM_KEY = "edgecme_psf_enlargement"
 #: Opacity of the live preview of the latent image over the photo.
 PREVIEW_OPACITY = 0.6
 _AUTO_PROFILES = ("detect automatically", None)
-#: Metadata key of a summary of the estimation run (method, parameters, timing).
-ESTIMATE_KEY = "edgecme_estimate"
 
 
 def psf_grid(shape, per_short_side: int = 5) -> tuple[int, int]:
@@ -125,6 +132,7 @@ class CameraMotionWidget(QWidget):
             "over the photo (3 rotation angles). In the image plane: sliding sideways and "
             "turning about the lens axis. Slid only: one blur for the whole photo")
         self.max_blur = MaxBlurControl(self.image_combo)
+        self.gamma = GammaControl(self.image_combo)
         self.focal_auto = QCheckBox("auto")
         self.focal_auto.setChecked(True)
         self.focal_auto.setToolTip("Auto: from the layer's metadata or the file's EXIF, "
@@ -208,6 +216,7 @@ class CameraMotionWidget(QWidget):
         form.addRow("image", self.image_combo.native)
         form.addRow("method", self.method_combo.native)
         form.addRow("model", self.model_combo.native)
+        form.addRow("gamma", self.gamma)
         form.addRow("max blur", self.max_blur)
         form.addRow("focal length", focal_row)
         form.addRow("", self.focal_hint)
@@ -293,6 +302,7 @@ class CameraMotionWidget(QWidget):
         method, model = self.method_combo.value, self.model_combo.value
         try:
             data = snapshot_image(image)
+            curve, reason = self.gamma.resolve(image, data)
             profiles = self._chosen_profiles(data.shape) if method != "xu" else None
         except ValueError as err:
             self.runner.refuse(first_line(err))
@@ -303,8 +313,8 @@ class CameraMotionWidget(QWidget):
             focal_px = float(self.focal_spin.value())
         max_blur = self.max_blur.value_for(data.shape)
         preview = self.preview_check.isChecked() and method != "ep"
-        gen = iter_estimate_motion(
-            data, method, model, max_blur, focal_px, profiles,
+        gen = estimate_in_linear_light(
+            data, curve, reason, method, model, max_blur, focal_px, profiles,
             lambda_w=self.lambda_w.value(), lambda_ip=self.lambda_ip.value(),
             lambda_f=self.lambda_f.value(), n_iter=self.n_iter.value(),
             max_side=self.max_side.value(), preview=preview, rng=self.seed.value())
@@ -359,12 +369,14 @@ class CameraMotionWidget(QWidget):
         if active is not None and active in layers:
             layers.selection.active = active
 
-    def _show_result(self, image: Image, estimate: MotionEstimate) -> str:
+    def _show_result(self, image: Image, result: Estimated) -> str:
+        estimate, latent = result.estimate, result.latent
         motion, info = estimate.motion, estimate.info
         summary = {"method": info.method, "model": info.model, "max_blur": info.max_blur,
                    "focal_px": info.focal_px, "n_profiles": info.n_profiles,
                    "seconds": round(info.seconds, 3), "converged": info.converged,
-                   "message": info.message}
+                   "message": info.message, "gamma": info.gamma,
+                   "gamma_reason": info.gamma_reason}
         meta = {MOTION_KEY: motion.to_dict(), SOURCE_KEY: image.name, ESTIMATE_KEY: summary}
         glyphs = psf_glyphs(motion, psf_grid(motion.image_shape))
         self._viewer.add_layer(Image(
@@ -372,18 +384,18 @@ class CameraMotionWidget(QWidget):
             contrast_limits=(0.0, 1.0),
             metadata={**meta, ZOOM_KEY: glyphs.enlargement},
             **resampled_kwargs(image, glyphs.rgba.shape[:2])))
-        if estimate.latent is not None:
+        if latent is not None:  # encoded as the photo is
             latent_name = f"{image.name} latent"
-            where = resampled_kwargs(image, estimate.latent.shape)
+            where = resampled_kwargs(image, latent.shape)
             if self._preview is not None and self._preview in self._viewer.layers:
                 layer, self._preview = self._preview, None  # the preview becomes the result
-                layer.data = estimate.latent
+                layer.data = latent
                 layer.scale, layer.translate = where["scale"], where["translate"]
                 layer.name = latent_name
                 layer.opacity = 1.0
                 layer.metadata.update(meta)
             else:
-                layer = Image(estimate.latent, name=latent_name, colormap="gray",
+                layer = Image(latent, name=latent_name, colormap="gray",
                               contrast_limits=(0.0, 1.0), metadata=dict(meta), **where)
                 self._viewer.add_layer(layer)
             layer.visible = False
@@ -391,16 +403,19 @@ class CameraMotionWidget(QWidget):
         self._last_name = image.name
         self.save_button.setEnabled(True)
         self._plot_motion(motion)
+        # the curve, unless it is the layers' default (linear, as chosen)
+        gamma = ("" if info.gamma == "linear" and info.gamma_reason == GIVEN
+                 else f"; {gamma_note(info.gamma, info.gamma_reason)}")
         if info.no_blur:
             return (f"no blur found ({info.seconds:.1f} s): the motion is the identity. If the "
-                    "photo is blurred, try a larger max blur or another model")
+                    f"photo is blurred, try a larger max blur or another model{gamma}")
         text = (f"{motion.n_poses} poses, blur extent {motion.blur_extent():.1f} px (longest "
                 f"side of the PSFs) "
                 f"({info.seconds:.1f} s); PSF field: each PSF drawn "
                 f"{glyphs.enlargement}x its size")
         if info.message.startswith("fell back"):
             text += f"; {info.message.split(';')[0]}"
-        return text
+        return text + gamma
 
     def _end(self, outcome: str) -> None:
         # the live preview is transient: a cancelled or failed run leaves no layer behind

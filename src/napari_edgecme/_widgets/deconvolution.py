@@ -14,6 +14,13 @@ layer's translate, as napari crop tools leave it -- with
 the blur does not shrink); a resized copy with
 :meth:`~napari_edgecme.core.motion.CameraMotion.rescale`. What it did is shown under
 the motion choice before a run; a guess is a warning; anything else is refused.
+
+The "gamma" choice (:class:`._gamma.GammaControl`: linear, the default for layers; sRGB;
+a power law; auto from the layer's source file) says how the layer's values encode
+light: the image is deconvolved in linear light and the result encoded as the input was
+(:func:`._gamma.deconvolve_in_linear_light`); ``metadata["edgecme_deconvolution"]``
+records the curve and why. A motion estimated with another curve is said in the motion
+line (the blur is the same; only the light it was measured in differs).
 """
 
 from __future__ import annotations
@@ -42,10 +49,12 @@ from qtpy.QtWidgets import (
 )
 
 from ..core._validation import first_line
-from ..core.deconv import DEFAULTS, iter_deconvolve
+from ..core.deconv import DEFAULTS
 from ..core.motion import CameraMotion
 from ._dock import dock_layout
+from ._gamma import GIVEN, GammaControl, deconvolve_in_linear_light, gamma_note
 from ._layers import (
+    ESTIMATE_KEY,
     MOTION_KEY,
     SOURCE_KEY,
     image_layers,
@@ -215,6 +224,7 @@ class DeconvolutionWidget(QWidget):
         self.motion_hint.setWordWrap(True)
         self.load_button = QPushButton("Load JSON…")
         self.load_button.setToolTip("Read a motion file (edgecme-motion JSON)")
+        self.gamma = GammaControl(self.image_combo)
         self.method_combo = ComboBox(label="method", choices=METHOD_CHOICES,
                                      value="hyperlaplacian")
         self.method_combo.native.setToolTip(
@@ -282,6 +292,7 @@ class DeconvolutionWidget(QWidget):
         form.addRow("image", self.image_combo.native)
         form.addRow("motion", motion_row)
         form.addRow("", self.motion_hint)
+        form.addRow("gamma", self.gamma)
         form.addRow("method", self.method_combo.native)
         layout = QVBoxLayout()
         layout.addLayout(form)
@@ -295,6 +306,7 @@ class DeconvolutionWidget(QWidget):
         self.method_combo.changed.connect(self._on_method_changed)
         self.image_combo.changed.connect(self._on_image_changed)
         self.motion_combo.changed.connect(lambda _value: self._update_motion_hint())
+        self.gamma.changed.connect(self._update_motion_hint)
         self.reset_choices()
         self._on_method_changed(self.method_combo.value)
 
@@ -364,7 +376,24 @@ class DeconvolutionWidget(QWidget):
                 "(longest side of the PSFs)")
         if fit.note:
             text += f"; {'check: ' if fit.guess else ''}{fit.note}"
+        estimated_in = self._motion_gamma()
+        if estimated_in is not None and estimated_in != self._gamma_name():
+            text += f"; estimated with gamma {estimated_in}"
         self.motion_hint.setText(text)
+
+    def _motion_gamma(self) -> str | None:
+        """The curve the chosen motion was estimated with, when its layer says."""
+        source = self.motion_combo.value
+        if not isinstance(source, Layer):
+            return None
+        summary = source.metadata.get(ESTIMATE_KEY)
+        return summary.get("gamma") if isinstance(summary, dict) else None
+
+    def _gamma_name(self) -> str | None:
+        try:
+            return self.gamma.resolve()[0].name
+        except ValueError:
+            return None
 
     def _on_method_changed(self, method) -> None:
         self.params.setCurrentIndex([value for _name, value in METHOD_CHOICES].index(method))
@@ -407,22 +436,24 @@ class DeconvolutionWidget(QWidget):
         try:
             fit = self.fitted_motion()
             data = snapshot_image(image)
+            curve, reason = self.gamma.resolve(image, data)
         except ValueError as err:
             self.runner.refuse(first_line(err))
             return
         if fit.guess:
             show_warning(f"Deconvolution: {fit.note}")
         method, params = self.method_combo.value, self.parameters()
-        gen = iter_deconvolve(data, fit.motion, method, **params)
-        self.runner.start(gen, on_result=partial(self._show_result, image, fit.motion, method,
-                                                 params))
+        gen = deconvolve_in_linear_light(data, curve, fit.motion, method, **params)
+        settings = {"method": method, **params, "gamma": curve.name, "gamma_reason": reason}
+        self.runner.start(gen, on_result=partial(self._show_result, image, fit.motion,
+                                                 settings))
 
     def cancel(self) -> None:
         """Stop the running deconvolution (nothing is added)."""
         self.runner.cancel()
 
     # -- main-thread handler -----------------------------------------------------------------
-    def _show_result(self, image: Image, motion: CameraMotion, method: str, params: dict,
+    def _show_result(self, image: Image, motion: CameraMotion, settings: dict,
                      restored: np.ndarray) -> str:
         restored = np.asarray(restored, dtype=np.float32)
         rgb = restored.ndim == 3
@@ -430,8 +461,11 @@ class DeconvolutionWidget(QWidget):
         layer = Image(restored, name=f"{image.name} deblurred", rgb=rgb,
                       contrast_limits=(0.0, 1.0),
                       metadata={MOTION_KEY: motion.to_dict(), SOURCE_KEY: image.name,
-                                DECONV_KEY: {"method": method, **params}},
+                                DECONV_KEY: settings},
                       **extra, **spatial_kwargs(image))
         self._viewer.add_layer(layer)
         self.last_layer = layer
-        return f"added {layer.name!r}"
+        if settings["gamma"] == "linear" and settings["gamma_reason"] == GIVEN:
+            return f"added {layer.name!r}"
+        return (f"added {layer.name!r}, encoded as the input; "
+                f"{gamma_note(settings['gamma'], settings['gamma_reason'])}")
