@@ -120,7 +120,7 @@ def deblur_many(paths, out_dir, method: str = "xu+ep", model: str = "rotation",
         warning about a photo.
     **params
         ``rng`` (an integer seed, default 0) and the estimation parameters
-        ``lambda_w``, ``lambda_ip``, ``lambda_f``, ``n_iter``, ``max_side``.
+        ``lambda_w``, ``lambda_ip``, ``lambda_f``, ``n_iter``, ``max_side``, ``refine``.
 
     Returns
     -------

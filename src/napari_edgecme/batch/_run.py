@@ -21,7 +21,7 @@ from ._task import deblur_photo
 __all__ = ["ESTIMATION_PARAMS"]
 
 #: Estimation options a batch takes (as :func:`~napari_edgecme.core.deblur.deblur`).
-ESTIMATION_PARAMS = ("lambda_w", "lambda_ip", "lambda_f", "n_iter", "max_side")
+ESTIMATION_PARAMS = ("lambda_w", "lambda_ip", "lambda_f", "n_iter", "max_side", "refine")
 
 
 def batch_options(method, model, max_blur, focal_px, deconvolution, deconv_params, params,

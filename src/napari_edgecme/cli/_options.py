@@ -45,7 +45,7 @@ def _describe(motion: CameraMotion) -> str:
 
 def _estimation_params(args) -> dict:
     params = {"rng": args.seed}
-    for name in ("lambda_w", "lambda_ip", "lambda_f", "n_iter", "max_side"):
+    for name in ("lambda_w", "lambda_ip", "lambda_f", "n_iter", "max_side", "refine"):
         value = getattr(args, name, None)
         if value is not None:
             params[name] = value

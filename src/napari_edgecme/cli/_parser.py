@@ -104,6 +104,9 @@ def _add_estimation(parser, profiles: bool = True) -> None:
     adv.add_argument("--max-side", type=_number(int), metavar="PX",
                      help=f"estimate on a copy downscaled to this longer side (default "
                           f"{d['max_side']})")
+    adv.add_argument("--no-refine", dest="refine", action="store_false", default=None,
+                     help="on a photo larger than --max-side, keep the copy's motion as it is "
+                          "instead of refining it at full resolution (xu, xu+ep)")
 
 
 def _add_deconvolution(parser) -> None:

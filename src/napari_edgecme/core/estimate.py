@@ -45,7 +45,16 @@ from .motion import CameraMotion
 from .photometry import LUMA
 from .profile_fit import EP_MAX_MISFIT, RobustProfileFit, check_coverage
 from .progress import Progress, StopRequested, drive
-from .pyramid import Level, dilate, initial_weights, pyramid_scales, resize
+from .pyramid import (
+    Level,
+    ScaleRecord,
+    contrast_gain,
+    dilate,
+    initial_weights,
+    pyramid_scales,
+    resize,
+)
+from .refine import iter_refine_motion, refinement_steps
 
 __all__ = [
     "DEFAULTS",
@@ -95,23 +104,6 @@ _RESTART_LAMBDA_F = 3.0
 _NO_BLUR_RATIO = 1.5
 #: Smallest interior side (px) on which :func:`blind_costs` compares the two costs.
 _MIN_INTERIOR = 16
-
-
-@dataclass
-class ScaleRecord:
-    """What happened at one pyramid level."""
-
-    level: int
-    shape: tuple[int, int]
-    max_blur: float
-    grid_size: int
-    active_poses: list[int] = field(default_factory=list)
-    costs: list[float] = field(default_factory=list)
-    lasso_iterations: list[int] = field(default_factory=list)
-
-    @property
-    def iterations(self) -> int:
-        return len(self.costs)
 
 
 @dataclass
@@ -177,21 +169,6 @@ def _luminance(img: np.ndarray) -> np.ndarray:
     return img @ LUMA.astype(img.dtype)
 
 
-def _contrast_gain(img: np.ndarray) -> tuple[float, float]:
-    """Offset and gain that stretch the 0.5 and 99.5 percentiles of ``img`` to 0 and 1.
-
-    The MDF does not depend on an affine change of intensities, but the L0 weight
-    ``lambda_f`` does: stretching makes one default serve dim and bright photos alike.
-    Edge profiles are still measured on the unstretched image (their contrast and
-    saturation tests refer to the [0, 1] range of the file), and ``I_p`` is multiplied
-    by the gain so that Eq. 19 compares like with like.
-    """
-    lo, hi = np.percentile(img, [0.5, 99.5])
-    if hi - lo < 1e-6:
-        return 0.0, 1.0
-    return float(lo), float(1.0 / (hi - lo))
-
-
 def _repeating(gen, record: Progress):
     """Run ``gen`` to its end, yielding ``record`` at each of its yields; return its value."""
     while True:
@@ -217,7 +194,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                          profiles=None, *, lambda_w: float | None = None,
                          lambda_ip: float | None = None, lambda_f: float | None = None,
                          n_iter: int | None = None, max_side: int | None = None,
-                         preview: bool = False, rng=None):
+                         refine: bool = True, preview: bool = False, rng=None):
     """Estimate the camera motion of a blurred photo, yielding progress records.
 
     Parameters
@@ -245,6 +222,11 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     max_side : int, optional
         Images larger than this are estimated on a downscaled copy (the motion is
         returned for the full image).
+    refine : bool
+        On such an image, Xu and Xu+Ep then refine the motion at the image's own
+        resolution, on crops chosen for their edges (:mod:`~.refine`): the poses of the
+        copy's grid would make each full-size PSF a row of dots. EpAlone's motion is
+        rescaled as it is.
     preview : bool
         Attach the current latent image to progress records (Xu, Xu+Ep).
     rng : None, int or numpy.random.Generator
@@ -284,6 +266,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     if profiles is not None and not hasattr(profiles, "rescaled"):
         raise ValueError(f"profiles must be None or EdgeProfiles; got {type(profiles).__name__}")
     preview = check_bool(preview, "preview")
+    refine = check_bool(refine, "refine")
     rng = as_rng(rng)
     if method == "xu":
         lambda_ip = 0.0
@@ -294,7 +277,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     work_scale = min(1.0, max_side / max(shape))
     work_shape = tuple(max(8, round(s * work_scale)) for s in shape)
     work_raw = resize(gray, work_shape)
-    offset, gain = _contrast_gain(work_raw)
+    offset, gain = contrast_gain(work_raw)
     constant = float(np.ptp(work_raw)) < 1e-6
     if method == "xu" and constant:  # ep, xu+ep say it with profiles
         warnings.warn("the image is constant: there is no blur to estimate (returning "
@@ -431,6 +414,16 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                               UserWarning, stacklevel=2)
         if info.no_blur:
             motion = CameraMotion.identity(model, intr_work)
+
+    # -- full resolution: the alternation carried on past the working copy, on crops ----
+    if refine and not stopped and not info.no_blur and method != "ep" and work_scale < 1:
+        total += refinement_steps(work_scale)
+        motion, step, completed = yield from iter_refine_motion(
+            gray, motion, work_scale, max_blur, offset=offset, gain=gain, lambda_w=lambda_w,
+            lambda_f=lambda_f, step=step, total=total, records=info.scales)
+        if not completed:
+            stopped = True
+            info.message += "; stopped during the full-resolution refinement"
 
     # -- result at the input's own size ----------------------------------------------
     final = motion.compact().recentred().rescale(shape)

@@ -18,8 +18,8 @@ from .mdf import border_taper, edge_profile_term, gradient_term, psf_basis
 from .measurement import measurement_matrix
 from .pyramid import Level, clean_mdf
 
-__all__ = ["GRADIENT_SMOOTHING", "LASSO_MAX_ITER", "edge_images", "mdf_update",
-           "salient_gradients"]
+__all__ = ["GRADIENT_SMOOTHING", "LASSO_MAX_ITER", "data_term", "edge_images", "mdf_update",
+           "salient_gradients", "solve_update"]
 
 #: FISTA iterations per MDF update.
 LASSO_MAX_ITER = 200
@@ -78,6 +78,28 @@ def mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_
     ``(I_p, I_ep, M)`` images (Xu+Ep), or None (Xu). The active set is fixed within a
     level, so its tiles, PSF basis, measurement matrix and edge-profile term are built
     once per level and kept in ``level.cache``.
+
+    Returns
+    -------
+    (weights, cost, lasso iterations)
+        The cleaned MDF on ``level.grid`` (shape ``grid.counts``), the final lasso cost.
+    """
+    term = data_term(level, active, latent, ep_data, lambda_ip, method, salient)
+    return solve_update(term, weights, active, lambda_w)
+
+
+def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient: float = 1.0):
+    """The quadratic data term of one MDF update over the active poses, unnormalised.
+
+    EpAlone: Eq. 16 on the measurement matrix; Xu: the gradient term of Eq. 22 (the
+    latent's salient gradients blurred into the observation's); Xu+Ep: that plus
+    ``lambda_Ip`` times the edge-profile term. Terms of several crops of one image at the
+    same pose grid add up (:mod:`~.refine`).
+
+    Returns
+    -------
+    QuadraticTerm
+        Over ``level.grid.poses(active)``; ``constant`` is the data energy.
     """
     key = active.tobytes()
     if level.cache.get("key") != key:
@@ -90,28 +112,37 @@ def mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_
             pgrid = level.patch_grid(poses)
             level.cache.update(pgrid=pgrid, basis=psf_basis(level.model, level.intrinsics,
                                                              poses, pgrid))
-    if method != "ep" and ep_data is not None and lambda_ip > 0 and "ep" not in level.cache:
+    if method == "ep":
+        return ep_data.term(level.cache["measurement"])  # Eq. 16
+    if ep_data is not None and lambda_ip > 0 and "ep" not in level.cache:
         level.cache["ep"] = edge_profile_term(*ep_data, level.cache["pgrid"],
                                               level.cache["basis"])
-    if method != "ep":
-        pgrid, basis = level.cache["pgrid"], level.cache["basis"]
-        taper = border_taper(level.shape, pgrid.psf_size // 2).astype(level.blurred.dtype)
-        f_grad = salient_gradients(np.stack(grad(latent)), level.blurred, salient) * taper
-        g_grad = np.stack(grad(level.blurred)) * taper
-        if GRADIENT_SMOOTHING > 0:  # the same linear filter on both sides keeps Eq. 22 exact
-            f_grad = ndimage.gaussian_filter(f_grad, (0, GRADIENT_SMOOTHING, GRADIENT_SMOOTHING))
-            g_grad = ndimage.gaussian_filter(g_grad, (0, GRADIENT_SMOOTHING, GRADIENT_SMOOTHING))
-        term = gradient_term(f_grad, g_grad, pgrid, basis)
-        if "ep" in level.cache:  # Eq. 22: both terms in gradient units
-            term = term + level.cache["ep"].scaled(lambda_ip)
-    else:
-        term = ep_data.term(level.cache["measurement"])  # Eq. 16
-    # normalise by the data energy: lambda_w then means the same at every scale
+    pgrid, basis = level.cache["pgrid"], level.cache["basis"]
+    taper = border_taper(level.shape, pgrid.psf_size // 2).astype(level.blurred.dtype)
+    f_grad = salient_gradients(np.stack(grad(latent)), level.blurred, salient) * taper
+    g_grad = np.stack(grad(level.blurred)) * taper
+    if GRADIENT_SMOOTHING > 0:  # the same linear filter on both sides keeps Eq. 22 exact
+        f_grad = ndimage.gaussian_filter(f_grad, (0, GRADIENT_SMOOTHING, GRADIENT_SMOOTHING))
+        g_grad = ndimage.gaussian_filter(g_grad, (0, GRADIENT_SMOOTHING, GRADIENT_SMOOTHING))
+    term = gradient_term(f_grad, g_grad, pgrid, basis)
+    if "ep" in level.cache:  # Eq. 22: both terms in gradient units
+        term = term + level.cache["ep"].scaled(lambda_ip)
+    return term
+
+
+def solve_update(term, weights, active, lambda_w, max_iter: int = LASSO_MAX_ITER):
+    """Solve the non-negative L1 problem of one MDF update and clean the result.
+
+    ``term`` is normalised by its data energy first, so that ``lambda_w`` means the same at
+    every scale and image size. ``weights`` (shape of the grid) warm-starts the solver and
+    is returned unchanged when the L1 weight swallows everything. ``max_iter`` caps the
+    FISTA iterations.
+    """
     term = term.scaled(1.0 / max(term.constant, 1e-30))
-    result = nonneg_lasso(term, lambda_w, weights[active], max_iter=LASSO_MAX_ITER)
-    new = np.zeros(level.grid.counts)
+    result = nonneg_lasso(term, lambda_w, weights[active], max_iter=max_iter)
+    new = np.zeros(weights.shape)
     new[active] = result.x
-    if not new.max() > 0:  # the L1 weight swallowed everything: keep the previous MDF
-        return weights, result.costs[-1] if result.costs else float("nan"), result.nit
     cost = result.costs[-1] if result.costs else float("nan")
+    if not new.max() > 0:  # the L1 weight swallowed everything: keep the previous MDF
+        return weights, cost, result.nit
     return clean_mdf(new), cost, result.nit

@@ -13,6 +13,7 @@ the motion is defined up to a homography).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import ndimage
@@ -22,7 +23,8 @@ from .motion import CameraMotion, psf_size_for
 from .operators import PatchGrid
 
 __all__ = ["CLUSTER_FLOOR", "PYRAMID_RATIO", "ROLL_FROM_BLUR", "WEIGHT_FLOOR", "Level",
-           "clean_mdf", "dilate", "initial_weights", "pyramid_scales", "resize"]
+           "ScaleRecord", "clean_mdf", "contrast_gain", "dilate", "initial_weights",
+           "pyramid_scales", "resize"]
 
 #: Size ratio of consecutive levels.
 PYRAMID_RATIO = 1.0 / math.sqrt(2.0)
@@ -44,6 +46,21 @@ def resize(img: np.ndarray, shape) -> np.ndarray:
                     preserve_range=True).astype(img.dtype)
 
 
+def contrast_gain(img: np.ndarray) -> tuple[float, float]:
+    """Offset and gain that stretch the 0.5 and 99.5 percentiles of ``img`` to 0 and 1.
+
+    The MDF does not depend on an affine change of intensities, but the L0 weight
+    ``lambda_f`` does: stretching makes one default serve dim and bright photos alike.
+    Edge profiles are still measured on the unstretched image (their contrast and
+    saturation tests refer to the [0, 1] range of the file), and ``I_p`` is multiplied
+    by the gain so that Eq. 19 compares like with like.
+    """
+    lo, hi = np.percentile(img, [0.5, 99.5])
+    if hi - lo < 1e-6:
+        return 0.0, 1.0
+    return float(lo), float(1.0 / (hi - lo))
+
+
 def pyramid_scales(shape, max_blur: float, coarsest_blur: float) -> list[float]:
     """Scales of the pyramid levels, coarse to fine (the last is 1).
 
@@ -60,20 +77,41 @@ def pyramid_scales(shape, max_blur: float, coarsest_blur: float) -> list[float]:
     return [PYRAMID_RATIO ** (n - 1 - i) for i in range(n)]
 
 
+@dataclass
+class ScaleRecord:
+    """What happened at one pyramid level."""
+
+    level: int
+    shape: tuple[int, int]
+    max_blur: float
+    grid_size: int
+    active_poses: list[int] = field(default_factory=list)
+    costs: list[float] = field(default_factory=list)
+    lasso_iterations: list[int] = field(default_factory=list)
+
+    @property
+    def iterations(self) -> int:
+        return len(self.costs)
+
+
+
 class Level:
     """One pyramid level: the observation, its camera, pose grid and MDF terms."""
 
-    def __init__(self, index, blurred, intrinsics, model, max_blur):
+    def __init__(self, index, blurred, intrinsics, model, max_blur, grid: PoseGrid | None = None):
         self.index = index
         self.blurred = blurred
         self.shape = blurred.shape
         self.intrinsics = intrinsics
         self.model = model
         self.max_blur = max_blur
-        # roll (theta_z) barely changes the PSFs of a small image: keep it fixed at the
-        # coarse levels, where freeing it only adds ambiguity
-        roll = 0.5 if max_blur >= ROLL_FROM_BLUR else 0.0
-        self.grid: PoseGrid = pose_grid(model, intrinsics, max_blur, roll_fraction=roll)
+        if grid is None:
+            # roll (theta_z) barely changes the PSFs of a small image: keep it fixed at the
+            # coarse levels, where freeing it only adds ambiguity
+            roll = 0.5 if max_blur >= ROLL_FROM_BLUR else 0.0
+            grid = pose_grid(model, intrinsics, max_blur, roll_fraction=roll)
+        #: the pose grid; a crop of a larger image shares that image's grid (:mod:`.refine`)
+        self.grid: PoseGrid = grid
         self.cache: dict = {}
 
     def motion(self, weights_grid: np.ndarray) -> CameraMotion:
