@@ -80,10 +80,15 @@ overlap and cross-fade (windows summing to one); each block is solved on its own
 latent domain with a margin of real data of twice the PSF size plus 8 px around the
 part that is kept, so a cut between blocks is handled like the image border and lies
 far from the kept pixels (block and whole-image results agree to ~40 dB, with no
-seam). Memory is bounded by one block (a 12 MP RGB photo peaks at about 1.3 GiB),
-and a progress record comes after every chunk of work -- about a second apart at
-most on 12 MP. RGB images are deconvolved channel by channel with one motion (the
-operator and tile spectra are built once per block).
+seam). Memory is bounded by one block besides the input and the result, which is
+written in place in its final (H, W, C) layout and clipped there (no full-size copy
+at the end; ``benchmarks/results/large-24mp.md`` for 12 and 24 MP). A progress
+record comes before each block's blur operator is built, after each chunk of tiles
+(tile spectra, the observation's spectra, each image step), after each slab of about
+a million pixels of the w-step, and after each half-quadratic step -- a few tenths
+of a second of work apart at most, whatever the image size -- and a stop at any of
+them returns at once. RGB images are deconvolved channel by channel with one motion
+(the operator and tile spectra are built once per block).
 
 References
 ----------
@@ -118,7 +123,7 @@ from .deconv_solvers import (
     wiener,
 )
 from .motion import CameraMotion
-from .progress import Progress, StopRequested, drive, stop
+from .progress import Progress, StopRequested, drive, relay, stop
 
 __all__ = ["DEFAULTS", "METHODS", "METHOD_PARAMETERS", "SOLVERS",
            "check_deconvolution_parameters", "deconvolve", "iter_deconvolve"]
@@ -267,7 +272,7 @@ def iter_deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian",
 
     Inputs are validated when the generator starts (at the first ``next``), before
     any record. ``close()`` stops the work at the next record; records come every few
-    tenths of a second (about a second apart at most on a 12 MP photo). Throwing
+    tenths of a second of work (module notes, *Large images*). Throwing
     :class:`~napari_edgecme.core.progress.StopRequested` in makes the generator yield
     one last record saying it stopped and return the image restored so far: finished
     blocks, the running block's current iterate, and the unrestored input elsewhere.
@@ -285,8 +290,9 @@ preview, lam
         ``stage="deconvolve"``; ``step`` counts finished iterations (half-quadratic
         steps, RL iterations, Wiener solves) over all blocks and channels, ``total`` of
         them, and never decreases; records inside an iteration (operator set-up, chunks
-        of tiles, CG iterations) repeat the step. ``preview`` holds the current
-        whole-image estimate on iteration records when ``preview=True``.
+        of tiles, slabs of the w-step, CG iterations) repeat the step. ``preview``
+        holds the current whole-image estimate on iteration records when
+        ``preview=True``.
 
     Returns
     -------
@@ -477,7 +483,9 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
                                          and opts["solver"] == "fourier")
     per, start = _block_solver(method, opts)
     total = nb * nc * per
-    out = np.zeros((nc, H, W), dtype)
+    # the result in its returned layout, (H, W, C) or (H, W): no copy at the end
+    out = np.zeros((H, W, nc) if img.ndim == 3 else (H, W), dtype)
+    planes = [out] if img.ndim == 2 else [out[..., c] for c in range(nc)]
     step = 0
     current = (0, -1)  # (block, channel) being solved; earlier pairs are in ``out``
     solver = None  # the running block's solver generator, None between solvers
@@ -487,26 +495,31 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
         """Finished blocks, the running block's ``iterate`` (on its domain), and the input
         where nothing ran."""
         res = out.copy()
+        res_planes = [res] if img.ndim == 2 else [res[..., c] for c in range(nc)]
         for b, blk in enumerate(plan.blocks):
             r0, r1, c0, c1 = blk["box"]
             for c in range(nc):
                 if (b, c) < current:
                     continue
                 if (b, c) == current and iterate is not None:
-                    plan.add(res[c], blk, iterate[inner])
+                    plan.add(res_planes[c], blk, iterate[inner])
                 else:
-                    plan.add(res[c], blk, channels[c][r0:r1, c0:c1])
-        return _as_output(res, img.ndim, dtype)
+                    plan.add(res_planes[c], blk, channels[c][r0:r1, c0:c1])
+        return _clipped(res)
 
     try:
         for b, blk in enumerate(plan.blocks):
             where_b = f"block {b + 1}/{nb}, " if nb > 1 else ""
+            yield Progress("deconvolve", step, total, f"{where_b}building the blur operator")
             domain = LatentDomain(motion, blk["box"], pad, stride, dtype)
             inner = domain.inner
             yield Progress("deconvolve", step, total, f"{where_b}blur operator ready")
             fourier = None
             if use_fourier:
-                fourier = PatchFourier(domain, margin=max(8, round(FOURIER_MARGIN * K)))
+                fourier = PatchFourier(domain, margin=max(8, round(FOURIER_MARGIN * K)),
+                                       build=False)
+                yield from relay(fourier.iter_build(), lambda r, at=step, where=where_b: Progress(
+                    "deconvolve", at, total, where + r.message))
                 yield Progress("deconvolve", step, total, f"{where_b}tile spectra ready")
             r0, r1, c0, c1 = blk["box"]
             for c in range(nc):
@@ -529,7 +542,7 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
                     yield Progress("deconvolve", step, total, where + record.message,
                                    iteration=k, preview=preview)
                 solver = None
-                plan.add(out[c], blk, x[domain.inner])
+                plan.add(planes[c], blk, x[domain.inner])
             current = (b + 1, -1)
     except StopRequested:
         result = assemble(stop(solver) if solver is not None else None)
@@ -543,10 +556,9 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
     finally:
         if solver is not None:
             solver.close()
-    return _as_output(out, img.ndim, dtype)
+    return _clipped(out)
 
 
-def _as_output(planes: np.ndarray, ndim: int, dtype) -> np.ndarray:
-    """(C, H, W) planes -> (H, W) or (H, W, C), clipped to [0, 1], contiguous."""
-    res = planes[0] if ndim == 2 else np.moveaxis(planes, 0, -1)
-    return np.ascontiguousarray(np.clip(res, 0, 1), dtype=dtype)
+def _clipped(res: np.ndarray) -> np.ndarray:
+    """``res`` clipped to [0, 1] in place (no full-size temporary); returns ``res``."""
+    return np.clip(res, 0, 1, out=res)

@@ -170,14 +170,21 @@ class PatchFourier:
     closed form above (two FFTs per iteration, warm-started from the previous step):
     the image border then gets the same masked data term as the exact solver.
 
+    The tile spectra are computed a chunk of tiles at a time (:meth:`iter_build`, a
+    generator yielding a record per chunk, for callers that report progress; the
+    constructor runs it unless ``build=False``), and so is the observation's
+    (:meth:`iter_set_observation`).
+
     Parameters
     ----------
     domain : LatentDomain
     margin : int
         Minimum box margin beyond each window (about one PSF size).
+    build : bool, default True
+        Compute the tile spectra now; with False, run :meth:`iter_build` before use.
     """
 
-    def __init__(self, domain: LatentDomain, margin: int):
+    def __init__(self, domain: LatentDomain, margin: int, *, build: bool = True):
         self.domain = domain
         op = domain.op
         grid = op.grid
@@ -196,15 +203,9 @@ class PatchFourier:
             for a in range(2))
         B0, B1 = self.box
         self._spec_shape = (B0, B1 // 2 + 1)
-        # tile PSFs centred on the box origin, their spectra
         K = grid.psf_size
         h = (K - 1) // 2
-        kbox = np.zeros((self.n, B0, B1), self.dtype)
-        kbox[:, :K, :K] = op.psfs
-        kbox = np.roll(kbox, (-h, -h), axis=(1, 2))
-        self.khat = self._rfft(kbox)
-        # |k|^2 and |d_x|^2 + |d_y|^2, each value repeated twice to match _rv(spectrum)
-        self.k2 = np.repeat(self.khat.real**2 + self.khat.imag**2, 2, axis=-1).astype(self.dtype)
+        # |d_x|^2 + |d_y|^2, each value repeated twice to match _rv(spectrum)
         wy = 2.0 - 2.0 * np.cos(2 * np.pi * np.arange(B0) / B0)
         wx = 2.0 - 2.0 * np.cos(2 * np.pi * np.arange(B1 // 2 + 1) / B1)
         self.d2 = np.repeat(wy[:, None] + wx[None, :], 2, axis=-1).astype(self.dtype)
@@ -240,6 +241,35 @@ class PatchFourier:
         self.chunk = max(1, _CHUNK_BYTES // per_tile)
         self.kty = None
         self._y = None
+        self.khat = self.k2 = None
+        if build:
+            for _ in self.iter_build():
+                pass
+
+    def iter_build(self):
+        """Compute the tile PSFs' spectra ``khat`` and ``|khat|^2``, a chunk of tiles at a time.
+
+        A generator yielding a record after each chunk (``step`` chunks of ``total``);
+        returns None. Each tile's PSF is centred on its box's origin.
+        """
+        op = self.domain.op
+        K = op.grid.psf_size
+        h = (K - 1) // 2
+        B0, B1 = self.box
+        spec_dtype = np.result_type(self.dtype, np.complex64)
+        self.khat = np.empty((self.n, *self._spec_shape), spec_dtype)
+        # |k|^2, each value repeated twice to match _rv(spectrum)
+        self.k2 = np.empty((self.n, B0, 2 * self._spec_shape[1]), self.dtype)
+        chunks = list(self._chunks())
+        for n_done, (_, sl) in enumerate(chunks, 1):
+            kbox = np.zeros((sl.stop - sl.start, B0, B1), self.dtype)
+            kbox[:, :K, :K] = op.psfs[sl]
+            kbox = np.roll(kbox, (-h, -h), axis=(1, 2))
+            khat = self._rfft(kbox)
+            self.khat[sl] = khat
+            self.k2[sl] = np.repeat(khat.real**2 + khat.imag**2, 2, axis=-1)
+            yield Progress("tile spectra", n_done, len(chunks),
+                           f"tile spectra {n_done}/{len(chunks)}")
 
     # -- geometry -----------------------------------------------------------------
     def _rfft(self, a):
@@ -297,6 +327,15 @@ class PatchFourier:
     # -- data ---------------------------------------------------------------------
     def set_observation(self, g: np.ndarray) -> None:
         """Take the observed block ``g`` (h, w): caches ``conj(k_r) y_r`` per tile."""
+        for _ in self.iter_set_observation(g):
+            pass
+
+    def iter_set_observation(self, g: np.ndarray):
+        """:meth:`set_observation` as a generator yielding a record per chunk of tiles.
+
+        Until it has run to its end the observation is incomplete: a caller that stops
+        it must not :meth:`solve`.
+        """
         self._y = self._to_canvas(self.domain.extend(g), "reflect")
         y_view = self._boxes(self._y)
         obs_view = self._boxes(self._observed)
@@ -319,6 +358,8 @@ class PatchFourier:
                 self._usable[pos] = usable[sel]
                 self._kty_masked[pos] = np.conj(self.khat[sel + sl.start]) * self._rfft(
                     np.where(usable[sel], boxes[sel], 0))
+            yield Progress("observation", sl.stop, self.n,
+                           f"observation spectra {sl.stop}/{self.n} tiles")
 
     def solve(self, prior_rhs, lam: float, beta: float, border_iterations: int = 4):
         """One image step: a solver generator yielding a record per chunk of tiles.
@@ -434,6 +475,16 @@ class PatchFourier:
 # the three methods on one block
 # --------------------------------------------------------------------------------------
 
+#: Pixels per slab of the hyper-Laplacian w-step (a record after each slab).
+W_STEP_SLAB = 2**20
+
+
+def _slabs(shape):
+    """Row slices of an (H, W) array, about :data:`W_STEP_SLAB` pixels each."""
+    rows = max(1, W_STEP_SLAB // max(1, shape[1]))
+    return [slice(r, min(r + rows, shape[0])) for r in range(0, shape[0], rows)]
+
+
 def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alpha: float,
                          betas, inner_iterations: int, solver: str,
                          fourier: PatchFourier | None, cg_iterations: int, cg_tol: float,
@@ -446,7 +497,9 @@ def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alp
     gradients, then the image step
     ``(lam T^T M^T M T + beta D^T D) f = lam T^T M^T g + beta D^T w`` by ``solver``.
     A solver generator (module notes): ``len(betas) * inner_iterations`` iterations,
-    each one half-quadratic step.
+    each one half-quadratic step; within a step a record after each chunk of tiles of
+    the observation's spectra (once, first) and of the image step, and after each slab
+    of :data:`W_STEP_SLAB` pixels of the w-step.
     """
     total = len(betas) * inner_iterations
     name = "half-quadratic step"
@@ -463,7 +516,7 @@ def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alp
     x = domain.extend(g)
     try:
         if solver == "fourier":
-            fourier.set_observation(g)
+            yield from relay(fourier.iter_set_observation(g), running)
         else:
             b_data = (domain.data.T @ g) * domain.dtype.type(lam)
             pre = CirculantPreconditioner(domain) if precondition else None
@@ -472,8 +525,12 @@ def hyperlaplacian_steps(domain: LatentDomain, g: np.ndarray, *, lam: float, alp
             thr = shrink_threshold(beta, alpha)
             for _ in range(inner_iterations):
                 w = domain.gradient @ x
-                for plane in w:  # the w-step, one gradient image at a time
-                    plane[...] = shrink_hyperlaplacian(plane, beta, alpha, thr)
+                # the w-step, one slab of rows of one gradient image at a time, a record
+                # after each (elementwise: the same as the whole image at once)
+                for plane in w:
+                    for rows in _slabs(plane.shape):
+                        plane[rows] = shrink_hyperlaplacian(plane[rows], beta, alpha, thr)
+                        yield running()
                 prior_rhs = domain.gradient.T @ w
                 prior_rhs *= domain.dtype.type(beta)
                 del w
@@ -540,7 +597,7 @@ def wiener(domain: LatentDomain, g: np.ndarray, *, nsr: float, fourier: PatchFou
 
     x = domain.extend(g)
     try:
-        fourier.set_observation(g)
+        yield from relay(fourier.iter_set_observation(g), running)
         yield running()
         x = yield from relay(fourier.solve(None, 1.0, nsr, border_iterations), running)
         yield Progress("wiener", 1, 1, f"{name} 1/1 done", iteration=1, iterate=x)

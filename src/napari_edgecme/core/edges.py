@@ -72,6 +72,7 @@ from .edge_tests import (
 from .measurement import measurement_matrix
 from .photometry import estimate_noise, srgb_to_linear, to_luminance
 from .profiles import PROFILES_FORMAT, PROFILES_VERSION, EdgeProfiles
+from .progress import Progress, drive
 
 __all__ = [
     "PROFILES_FORMAT",
@@ -80,6 +81,7 @@ __all__ = [
     "EdgeProfiles",
     "estimate_noise",
     "extract_edge_profiles",
+    "iter_extract_edge_profiles",
     "measurement_matrix",
     "profile_along_line",
     "srgb_to_linear",
@@ -253,6 +255,33 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
     >>> len(prof) > 10, bool(abs(prof.derivatives.sum(1) - 1).max() < 1e-9)
     (True, True)
     """
+    return drive(iter_extract_edge_profiles(
+        image, max_blur, rng=rng, sigma=sigma, min_contrast=min_contrast, min_snr=min_snr,
+        spacing=spacing, n_lines=n_lines, line_spread=line_spread, flat_tol=flat_tol,
+        monotone_tol=monotone_tol, straight_tol=straight_tol, saturation=saturation,
+        reject_outliers=reject_outliers, reject_soft=reject_soft,
+        max_candidates=max_candidates, max_profiles=max_profiles))
+
+
+def iter_extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast=0.06,
+                               min_snr=10.0, spacing=None, n_lines=5, line_spread=None,
+                               flat_tol=0.06, monotone_tol=0.08, straight_tol=0.35,
+                               saturation=0.99, reject_outliers=True, reject_soft=True,
+                               max_candidates=6000, max_profiles=None):
+    """:func:`extract_edge_profiles` as a generator of progress records.
+
+    The same parameters, checks and result (``StopIteration.value``, the same profiles
+    bit for bit); a record after each part of the work -- the candidates and the
+    validity tests at each detection scale, then the tests that compare the profiles
+    with each other -- so that a caller reporting progress hears from it every few
+    tenths of a second. ``close()`` stops it at a record; it has no partial result.
+
+    Yields
+    ------
+    Progress
+        ``stage="profiles"``, ``step`` parts done of ``total`` (two per detection
+        scale, and one for the consistency tests).
+    """
     img = to_luminance(image)
     max_blur = check_positive(max_blur, "max_blur")
     rng = as_rng(rng)
@@ -288,10 +317,16 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
         return empty("image has no contrast (nearly constant)")
 
     parts, taken = [], np.zeros((0, 2))
-    for scale in scales:
-        part = _extract_at_scale(img, scale, sigma if fixed_scale else None, tests,
-                                 n_lines, line_spread, spacing, max_candidates, rng, taken,
-                                 geom.half, stats)
+    total = 2 * len(scales) + 1
+    for k, scale in enumerate(scales):
+        where = f"edge profiles, scale {k + 1}/{len(scales)} ({scale:.3g} px)"
+
+        def record(done, what, k=k, where=where):
+            return Progress("profiles", 2 * k + done, total, f"{where}: {what}")
+        part = yield from _extract_at_scale(img, scale, sigma if fixed_scale else None, tests,
+                                            n_lines, line_spread, spacing, max_candidates,
+                                            rng, taken, geom.half, stats, record)
+        yield record(2, "tested")
         stats["valid_by_scale"].append(0 if part is None else len(part[1]["centroid"]))
         if part is not None:
             parts.append(part)
@@ -332,6 +367,7 @@ def extract_edge_profiles(image, max_blur, *, rng=None, sigma=None, min_contrast
             stats["rejected"][REASONS[_SATURATED]] = (
                 stats["rejected"].get(REASONS[_SATURATED], 0) + int(cut.sum()))
         keep[np.flatnonzero(keep)[cut]] = False
+    yield Progress("profiles", total, total, "edge profiles: consistency tests done")
     quality = _quality(res, agreement, geom, tests)
     measures = _measures(res, agreement, width_excess, geom)
     idx = np.flatnonzero(keep)
@@ -377,8 +413,11 @@ def _scales(max_blur: float) -> tuple:
 
 
 def _extract_at_scale(img, scale, sigma, tests, n_lines, line_spread, spacing,
-                      max_candidates, rng, taken, half, stats):
+                      max_candidates, rng, taken, half, stats, record):
     """Candidates and validity tests at one detection scale; ``None`` when none passed.
+
+    A generator: yields ``record(1, "candidates")`` once the candidates are found, and
+    returns the result.
 
     Candidates within ``spacing`` of a profile already found at a larger scale
     (``taken``, (m, 2)) are skipped. The valid profiles are put on the offsets grid
@@ -402,6 +441,7 @@ def _extract_at_scale(img, scale, sigma, tests, n_lines, line_spread, spacing,
         pick = np.sort(rng.choice(len(cand), max_candidates, replace=False))
         cand, angle = cand[pick], angle[pick]
     stats["examined"] += len(cand)
+    yield record(1, f"{len(cand)} candidates")
     if len(cand) == 0:
         return None
     res = _two_pass(img, cand, angle, geom, tests, max_tilt_pass1=np.deg2rad(30.0))

@@ -144,15 +144,36 @@ def write_image(path, image, bits: int | None = None) -> Path:
 
             if np.issubdtype(arr.dtype, np.floating) or arr.dtype == np.bool_:
                 depth = 16 if (bits == 16 and suffix == ".png") else 8
-                levels = 2**depth - 1
-                arr = np.round(np.clip(np.nan_to_num(arr.astype(np.float64)), 0, 1) * levels)
-                arr = arr.astype(np.uint16 if depth == 16 else np.uint8)
+                arr = _quantized(arr, depth)
             elif arr.dtype not in (np.uint8, np.uint16):
                 raise ValueError(f"cannot write integer dtype {arr.dtype} as {suffix}")
             if suffix in (".jpg", ".jpeg", ".bmp") and arr.dtype == np.uint16:
                 arr = (arr // 257).astype(np.uint8)
             iio.imwrite(tmp, arr, extension=suffix)
     return path
+
+
+#: Pixels converted at a time when a float image is quantised for writing.
+_QUANTIZE_PIXELS = 2**20
+
+
+def _quantized(arr: np.ndarray, depth: int) -> np.ndarray:
+    """Float (or bool) ``arr`` in [0, 1] -> uint8/uint16 of ``depth`` bits, rounded.
+
+    NaN counts as 0 and values are clipped to [0, 1]; the arithmetic is float64, a slab
+    of rows at a time, so no float64 copy of the whole image is made.
+    """
+    levels = 2**depth - 1
+    shape = arr.shape
+    arr = arr.reshape(1) if arr.ndim == 0 else arr
+    out = np.empty(arr.shape, np.uint16 if depth == 16 else np.uint8)
+    rows = max(1, _QUANTIZE_PIXELS // max(1, arr[0].size if len(arr) else 1))
+    for r in range(0, arr.shape[0], rows):
+        part = np.nan_to_num(arr[r:r + rows].astype(np.float64))
+        np.clip(part, 0, 1, out=part)
+        part *= levels
+        out[r:r + rows] = np.round(part, out=part)
+    return out.reshape(shape)
 
 
 def write_json(path, data, indent=None) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 
 from .deconv_solvers import LatentDomain, PatchFourier
 from .motion import CameraMotion
-from .progress import Progress, StopRequested, drive
+from .progress import Progress, StopRequested, drive, relay
 
 __all__ = ["iter_l0_latent", "l0_latent", "splitting_weights"]
 
@@ -74,14 +74,26 @@ def splitting_weights(lambda_f: float, kappa: float = 2.0, beta_max: float = 64.
 
 def iter_l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *,
                    kappa: float = 2.0, beta_max: float = 64.0,
-                   return_gradients: bool = False):
+                   return_gradients: bool = False, fine: bool = False):
     """:func:`l0_latent` as a solver generator (:mod:`~napari_edgecme.core.progress`).
+
+    Parameters
+    ----------
+    blurred, motion, lambda_f, kappa, beta_max, return_gradients
+        As :func:`l0_latent`.
+    fine : bool, default False
+        Also yield records within the steps: one per chunk of tiles of the set-up
+        (tile spectra, observation) and of each image step, so that a consumer who
+        cancels at a record is heard within a fraction of a step (a step of a 1024 px
+        image is up to about a second; the set-up before the first step longer).
 
     Yields
     ------
     Progress
-        ``stage="latent"``, one record after each splitting step (``step`` of
-        ``total`` steps), its ``iterate`` the latent estimate on the padded domain.
+        ``stage="latent"``: a record after each splitting step (``step`` of ``total``
+        steps), its ``iterate`` the latent estimate on the padded domain; with
+        ``fine``, records within the steps too, which repeat ``step`` and carry no
+        ``iterate``.
 
     Returns
     -------
@@ -92,23 +104,38 @@ def iter_l0_latent(blurred: np.ndarray, motion: CameraMotion, lambda_f: float, *
     H, W = blurred.shape
     pad = (motion.psf_size() + 1) // 2
     domain = LatentDomain(motion, (0, H, 0, W), pad, dtype=blurred.dtype)
-    solver = PatchFourier(domain, margin=2 * pad)
-    solver.set_observation(blurred)
     f = domain.extend(blurred)
     betas = splitting_weights(lambda_f, kappa, beta_max)
     gradient = domain.gradient  # D on the domain
-    hv = None  # the thresholded gradients (h, v), shape (2, *domain.shape)
+    hv = None  # the thresholded gradients (h, v) of the last finished step, (2, *domain.shape)
+    done = 0  # finished splitting steps
+
+    def within(record):
+        return Progress("latent", done, len(betas), f"L0 splitting step {done + 1}/"
+                        f"{len(betas)}: {record.message}", iteration=done)
+
+    def run(gen):
+        """Run a sub-step: its records relabelled (``fine``) or not passed on."""
+        if fine:
+            return (yield from relay(gen, within))
+        return drive(gen)
+
     try:
-        for k, beta in enumerate(betas, 1):
-            hv = gradient @ f
-            small = hv[0] * hv[0] + hv[1] * hv[1] < lambda_f / beta
-            hv[:, small] = 0
-            prior = gradient.T @ hv
+        solver = PatchFourier(domain, margin=2 * pad, build=False)
+        yield from run(solver.iter_build())
+        yield from run(solver.iter_set_observation(blurred))
+        for beta in betas:
+            step_hv = gradient @ f
+            small = step_hv[0] * step_hv[0] + step_hv[1] * step_hv[1] < lambda_f / beta
+            step_hv[:, small] = 0
+            prior = gradient.T @ step_hv
             prior *= blurred.dtype.type(beta)
-            f = drive(solver.solve(prior, 1.0, beta))
-            yield Progress("latent", k, len(betas),
-                           f"L0 splitting step {k}/{len(betas)} (beta {beta:.3g})",
-                           iteration=k, iterate=f)
+            f = yield from run(solver.solve(prior, 1.0, beta))
+            hv = step_hv
+            done += 1
+            yield Progress("latent", done, len(betas),
+                           f"L0 splitting step {done}/{len(betas)} (beta {beta:.3g})",
+                           iteration=done, iterate=f)
     except StopRequested:
         pass
     f = np.ascontiguousarray(f[domain.inner])
