@@ -340,9 +340,10 @@ class PoseGrid:
 
     def poses(self, active=None) -> np.ndarray:
         """Poses of the grid points (all, or where the boolean grid ``active`` is set), (n, d)."""
-        idx = np.indices(self.counts).reshape(len(self.counts), -1).T
-        if active is not None:
-            idx = idx[np.asarray(active, bool).ravel()]
+        if active is None:
+            idx = np.indices(self.counts).reshape(len(self.counts), -1).T
+        else:  # only the set points: a fine grid of a large photo has millions
+            idx = np.argwhere(np.asarray(active, bool).reshape(self.counts))
         return (idx - self.half) * self.steps
 
     def splat(self, poses, weights) -> np.ndarray:

@@ -23,6 +23,11 @@ pyramid with ratio ``1/sqrt(2)``):
   MDF update; **Xu+Ep** adds ``lambda_Ip`` times the edge-profile term (Eq. 22).
   ``lambda_Ip = 0`` is exactly Xu.
 
+A photo larger than ``max_side`` is estimated on a downscaled copy; Xu and Xu+Ep then
+carry the alternation on, at 2x steps, up to the photo's own resolution on a few crops
+chosen for their edges (:mod:`~.refine`), so that the motion is a path at the photo's
+pixel scale rather than the copy's grid.
+
 ``iter_estimate_motion`` is the generator (progress records, cancellable);
 ``estimate_motion`` drives it. :func:`~.deblur.deblur` estimates and then deconvolves at
 full resolution.

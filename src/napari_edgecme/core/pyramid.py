@@ -115,9 +115,9 @@ class Level:
         self.cache: dict = {}
 
     def motion(self, weights_grid: np.ndarray) -> CameraMotion:
-        keep = weights_grid.ravel() > 0
-        return CameraMotion(self.model, self.intrinsics, self.grid.poses()[keep],
-                            weights_grid.ravel()[keep])
+        keep = weights_grid > 0
+        return CameraMotion(self.model, self.intrinsics, self.grid.poses(keep),
+                            weights_grid[keep])
 
     def patch_grid(self, poses) -> PatchGrid:
         """Tiles for the MDF terms: a few per axis, each several PSFs wide."""

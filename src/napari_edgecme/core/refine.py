@@ -295,8 +295,8 @@ def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float
 
 
 def _grid_motion(grid, weights):
-    keep = weights.ravel() > 0
-    return grid.poses()[keep], weights.ravel()[keep]
+    keep = weights > 0
+    return grid.poses(keep), weights[keep]
 
 
 def refinement_steps(work_scale: float) -> int:
