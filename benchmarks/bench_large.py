@@ -257,13 +257,48 @@ def worker_cancel(image_path: str, method: str, stop_at: int, motion_path: str =
 
 
 _CLI_WRAPPER = """
-import sys, time
+import sys, threading, time
 t0, c0 = time.perf_counter(), time.process_time()
+import napari_edgecme.cli._console as console_mod
 from napari_edgecme.cli import main
+from napari_edgecme.core import io
 from napari_edgecme._worker import peak_rss_mib
+state = {{"where": "reading the photo", "peak": 0.0, "peak_where": ""}}
+done = threading.Event()
+
+def rss():
+    with open("/proc/self/status", encoding="ascii") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return 0.0
+
+def sample():  # where the resident memory was largest (sampled every 0.1 s)
+    while not done.is_set():
+        now = rss()
+        if now > state["peak"]:
+            state["peak"], state["peak_where"] = now, state["where"]
+        done.wait(0.1)
+
+real_drive, real_write = console_mod.drive, io.write_image
+
+def drive(gen, callback=None):
+    def seen(record):
+        state["where"] = record.stage + ": " + record.message
+        return None if callback is None else callback(record)
+    return real_drive(gen, seen)
+
+def write(*args, **kwargs):
+    state["where"] = "writing the output"
+    return real_write(*args, **kwargs)
+
+console_mod.drive, io.write_image = drive, write
+threading.Thread(target=sample, daemon=True).start()
 rc = main(sys.argv[1:])
+done.set()
 print("{marker}" + __import__("json").dumps({{"rc": rc, "seconds": time.perf_counter() - t0,
-      "cpu_seconds": time.process_time() - c0, "peak_rss_mib": peak_rss_mib()}}), flush=True)
+      "cpu_seconds": time.process_time() - c0, "peak_rss_mib": peak_rss_mib(),
+      "sampled_peak_mib": state["peak"], "sampled_peak_at": state["peak_where"]}}), flush=True)
 """
 
 
@@ -375,7 +410,10 @@ def report(size: int, result: dict) -> str:
         lines += [f"`edgecme deblur IMG.png -o OUT.png` at {size} MP: exit {c['rc']}, "
                   f"{c['seconds']:.1f} s wall, {c['cpu_seconds']:.1f} s CPU, peak "
                   f"{c['peak_rss_mib']:.0f} MiB = {c['peak_rss_mib'] / 1024:.2f} GiB: "
-                  f"{_mark(c['peak_rss_mib'] / 1024 <= LIMIT_GIB)} (<= {LIMIT_GIB:g} GiB).", ""]
+                  f"{_mark(c['peak_rss_mib'] / 1024 <= LIMIT_GIB)} (<= {LIMIT_GIB:g} GiB)"
+                  + (f"; largest sampled RSS {c['sampled_peak_mib']:.0f} MiB during "
+                     f"\"{c['sampled_peak_at']}\"" if c.get("sampled_peak_at") else "")
+                  + ".", ""]
     return "\n".join(lines)
 
 

@@ -320,3 +320,36 @@ def test_stop_requested_reaches_set_up_records_of_a_block(rgb_case):
         next(gen)
     # the input where nothing ran (cross-faded blocks: to float rounding)
     np.testing.assert_allclose(done.value.value, np.clip(blurred, 0, 1), rtol=0, atol=1e-6)
+
+
+def test_the_image_so_far_is_finished_blocks_and_the_input_elsewhere(rgb_case):
+    # previews (the image so far, as a stop returns it) while block k runs: where only one
+    # block's window reaches, a finished block shows the final result and a block not yet
+    # reached the input -- whichever way the input's share is added in (module notes)
+    blurred, motion = rgb_case[0][..., 0], rgb_case[1]
+    final = deconvolve(blurred, motion, block_size=96)
+    plan = deconv.BlockPlan(blurred.shape, 96, deconv.psf_extent(motion))
+    cover = np.zeros(blurred.shape, int)
+    for blk in plan.blocks:
+        wr0, wr1, wc0, wc1 = blk["window_box"]
+        cover[wr0:wr1, wc0:wc1] += 1
+    only = []
+    for blk in plan.blocks:
+        wr0, wr1, wc0, wc1 = blk["window_box"]
+        mask = np.zeros(blurred.shape, bool)
+        mask[wr0:wr1, wc0:wc1] = True
+        only.append(mask & (cover == 1))
+    assert len(plan) == 6 and all(m.any() for m in only)
+    records, _ = records_of(iter_deconvolve(blurred, motion, block_size=96, preview=True))
+    checked = 0
+    for record in records:
+        if record.preview is None:
+            continue
+        running = int(record.message.split("block ")[1].split("/")[0]) - 1
+        for b, mask in enumerate(only):
+            if b < running:
+                np.testing.assert_allclose(record.preview[mask], final[mask], atol=1e-6)
+            elif b > running:
+                np.testing.assert_allclose(record.preview[mask], blurred[mask], atol=1e-6)
+        checked += 1
+    assert checked == 6 * 6  # six blocks, six half-quadratic steps each

@@ -491,20 +491,38 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
     solver = None  # the running block's solver generator, None between solvers
     inner = None
 
-    def assemble(iterate: np.ndarray | None) -> np.ndarray:
+    def assemble(iterate: np.ndarray | None, in_place: bool = False) -> np.ndarray:
         """Finished blocks, the running block's ``iterate`` (on its domain), and the input
-        where nothing ran."""
-        res = out.copy()
+        where nothing ran (in ``out`` itself with ``in_place``: the run is over).
+
+        The block windows sum to one, so the input's share is either added for the
+        blocks not reached, or the whole input added and the share of the blocks
+        reached taken off again -- whichever touches fewer pixels.
+        """
+        res = out if in_place else out.copy()
         res_planes = [res] if img.ndim == 2 else [res[..., c] for c in range(nc)]
-        for b, blk in enumerate(plan.blocks):
+        pending = [(b, c) for b in range(nb) for c in range(nc) if (b, c) >= current
+                   and not ((b, c) == current and iterate is not None)]
+        reached = [(b, c) for b in range(nb) for c in range(nc) if (b, c) < current
+                   or ((b, c) == current and iterate is not None)]
+        input_pairs, subtract = pending, False
+        if len(reached) < len(pending):
+            res += img  # every block's share of the input, minus the reached ones below
+            input_pairs, subtract = reached, True
+        by_block = {}
+        for b, c in input_pairs:
+            by_block.setdefault(b, []).append(c)
+        for b, chans in by_block.items():
+            blk = plan.blocks[b]
             r0, r1, c0, c1 = blk["box"]
-            for c in range(nc):
-                if (b, c) < current:
-                    continue
-                if (b, c) == current and iterate is not None:
-                    plan.add(res_planes[c], blk, iterate[inner])
-                else:
-                    plan.add(res_planes[c], blk, channels[c][r0:r1, c0:c1])
+            if len(chans) == nc and img.ndim == 3:  # every channel at once
+                plan.add(res, blk, img[r0:r1, c0:c1], subtract=subtract)
+            else:
+                for c in chans:
+                    plan.add(res_planes[c], blk, channels[c][r0:r1, c0:c1],
+                             subtract=subtract)
+        if iterate is not None and current[1] >= 0:
+            plan.add(res_planes[current[1]], plan.blocks[current[0]], iterate[inner])
         return _clipped(res)
 
     try:
@@ -545,7 +563,7 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
                 plan.add(planes[c], blk, x[domain.inner])
             current = (b + 1, -1)
     except StopRequested:
-        result = assemble(stop(solver) if solver is not None else None)
+        result = assemble(stop(solver) if solver is not None else None, in_place=True)
         try:
             yield Progress("deconvolve", step, total,
                            f"stopped by request after {step}/{total} iterations; returning "

@@ -91,9 +91,20 @@ class BlockPlan:
         return len(self.blocks)
 
     @staticmethod
-    def add(out: np.ndarray, block: dict, observed: np.ndarray) -> None:
-        """``out[window] += window * observed-block result`` (the cross-fade)."""
+    def add(out: np.ndarray, block: dict, observed: np.ndarray, *,
+            subtract: bool = False) -> None:
+        """``out[window] += window * observed-block result`` (the cross-fade).
+
+        ``out`` and ``observed`` are (H, W) and (h, w), or (H, W, C) and (h, w, C) (every
+        channel at once); with ``subtract``, ``out[window] -= ...``.
+        """
         r0, _, c0, _ = block["box"]
         wr0, wr1, wc0, wc1 = block["window_box"]
         part = observed[wr0 - r0:wr1 - r0, wc0 - c0:wc1 - c0]
-        out[wr0:wr1, wc0:wc1] += block["window"].astype(out.dtype) * part
+        window = block["window"].astype(out.dtype)
+        if part.ndim == 3:
+            window = window[..., None]
+        if subtract:
+            out[wr0:wr1, wc0:wc1] -= window * part
+        else:
+            out[wr0:wr1, wc0:wc1] += window * part
