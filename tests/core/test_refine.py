@@ -89,9 +89,11 @@ def test_refinement_brings_a_coarse_grid_motion_closer_to_the_truth(shaken):
     after = motion_psf_ncc(refined, truth, (3, 3))
     print(f"PSF NCC at full resolution: coarse grid {before:.3f}, refined {after:.3f}")
     assert completed and refined.image_shape == SHAPE
-    # measured: 0.21 -> 0.83 and 0.10 -> 0.69 (seeds 1, 2)
+    # measured: 0.21 -> 0.58 and 0.10 -> 0.51 (seeds 1, 2); with the copy's 1 px gradient
+    # smoothing instead of 4 px these sharp synthetic edges went to 0.83 and 0.69, a
+    # 12 MP upscaled photo's noisier gradients the other way (see refine's notes)
     assert after >= before + 0.3
-    assert after >= 0.6
+    assert after >= 0.45
 
 
 def test_crops_go_to_the_edges():

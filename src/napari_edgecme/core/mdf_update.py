@@ -88,13 +88,15 @@ def mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_
     return solve_update(term, weights, active, lambda_w)
 
 
-def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient: float = 1.0):
+def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient: float = 1.0,
+              smoothing: float = GRADIENT_SMOOTHING):
     """The quadratic data term of one MDF update over the active poses, unnormalised.
 
     EpAlone: Eq. 16 on the measurement matrix; Xu: the gradient term of Eq. 22 (the
     latent's salient gradients blurred into the observation's); Xu+Ep: that plus
     ``lambda_Ip`` times the edge-profile term. Terms of several crops of one image at the
-    same pose grid add up (:mod:`~.refine`).
+    same pose grid add up (:mod:`~.refine`). ``smoothing`` is the standard deviation (px)
+    of the Gaussian applied to both sides of the gradient term.
 
     Returns
     -------
@@ -121,9 +123,9 @@ def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient:
     taper = border_taper(level.shape, pgrid.psf_size // 2).astype(level.blurred.dtype)
     f_grad = salient_gradients(np.stack(grad(latent)), level.blurred, salient) * taper
     g_grad = np.stack(grad(level.blurred)) * taper
-    if GRADIENT_SMOOTHING > 0:  # the same linear filter on both sides keeps Eq. 22 exact
-        f_grad = ndimage.gaussian_filter(f_grad, (0, GRADIENT_SMOOTHING, GRADIENT_SMOOTHING))
-        g_grad = ndimage.gaussian_filter(g_grad, (0, GRADIENT_SMOOTHING, GRADIENT_SMOOTHING))
+    if smoothing > 0:  # the same linear filter on both sides keeps Eq. 22 exact
+        f_grad = ndimage.gaussian_filter(f_grad, (0, smoothing, smoothing))
+        g_grad = ndimage.gaussian_filter(g_grad, (0, smoothing, smoothing))
     term = gradient_term(f_grad, g_grad, pgrid, basis)
     if "ep" in level.cache:  # Eq. 22: both terms in gradient units
         term = term + level.cache["ep"].scaled(lambda_ip)

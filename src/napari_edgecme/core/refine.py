@@ -17,7 +17,11 @@ their edges rather than on the whole frame:
   path becomes a connected one before the update prunes it; the active poses are its
   support dilated by one step;
 * each alternation updates every crop's L0 latent (Eq. 21) and then the MDF on the
-  gradient term of Eq. 22, summed over crops (:func:`~.mdf_update.data_term`).
+  gradient term of Eq. 22, summed over crops (:func:`~.mdf_update.data_term`), with
+  both sides smoothed over as many photo pixels as one pixel of the working copy
+  spans (on a 12 MP photo with a 60 px shake, one update from a truth known on the
+  copy's grid took the PSF NCC from 0.60 to 0.52 with the copy's 1 px smoothing, to
+  0.67 with 4 px).
 
 Memory is bounded by the crops (:data:`N_CROPS` of at most :data:`CROP_SIDE` pixels a
 side), not by the photo; progress records come from every splitting step of every crop,
@@ -34,7 +38,7 @@ from scipy import ndimage
 from .camera import Intrinsics, pose_grid
 from .deconv_prior import grad
 from .latent import iter_l0_latent
-from .mdf_update import data_term, solve_update
+from .mdf_update import GRADIENT_SMOOTHING, data_term, solve_update
 from .motion import CameraMotion
 from .progress import Progress, StopRequested
 from .pyramid import WEIGHT_FLOOR, Level, ScaleRecord, contrast_gain, dilate, resize
@@ -77,13 +81,18 @@ def refinement_scales(work_scale: float) -> list[float]:
 
 def choose_crops(gray: np.ndarray, side_fraction: tuple[float, float], n: int | None = None
                  ) -> list[tuple[float, float]]:
-    """Centres of ``n`` crops rich in straight edges, spread over the frame.
+    """Centres of ``n`` crops rich in straight edges, one in each cell of the frame.
 
-    The score of a window is the sum, over it, of the gradient magnitude weighted by
-    the local straightness of the gradients (the usefulness map of Xu & Jia 2010,
-    :func:`~.mdf_update.salient_gradients`); windows are picked greedily, each one's
-    neighbourhood (a window's size) then excluded, so the crops see different parts of
-    the frame -- what the rotational components need to be told apart.
+    The frame is cut into ``n`` cells (rows x columns as close to its aspect as ``n``
+    allows: 2 x 2 for four crops) and each cell gets the window, centred in it, whose sum
+    of gradient magnitude weighted by the local straightness of the gradients (the
+    usefulness map of Xu & Jia 2010, :func:`~.mdf_update.salient_gradients`) is largest.
+    Spread matters more than the very best edges: a rotation about the optical axis and
+    one about a tilted axis give nearly the same PSFs on one side of the frame, and
+    differ across it. (Picking the best windows anywhere put all four crops of a 12 MP
+    landscape in its right third, and the refinement then fitted the motion there at the
+    expense of the rest: PSF NCC over the frame fell from 0.50 to 0.34 even with the
+    sharp image as the latent.)
 
     Parameters
     ----------
@@ -96,10 +105,14 @@ def choose_crops(gray: np.ndarray, side_fraction: tuple[float, float], n: int | 
 
     Returns
     -------
-    list of (row, col) fractions of the frame, best first.
+    list of (row, col) fractions of the frame, one per cell, row by row.
     """
     n = N_CROPS if n is None else n
     h, w = gray.shape
+    rows = max(1, min(n, round(math.sqrt(n * h / w))))
+    while n % rows:
+        rows -= 1
+    cols = n // rows
     gx, gy = grad(gray)
     mag = np.hypot(gx, gy)
     straight = np.hypot(ndimage.uniform_filter(gx, 5), ndimage.uniform_filter(gy, 5))
@@ -107,17 +120,22 @@ def choose_crops(gray: np.ndarray, side_fraction: tuple[float, float], n: int | 
     win = (max(1, round(side_fraction[0] * h)), max(1, round(side_fraction[1] * w)))
     density = ndimage.uniform_filter(score.astype(np.float64), win, mode="constant")
     # a window must fit in the frame: its centre stays half a window from the border
-    lo = [min(k // 2, n_ - 1 - k // 2) for k, n_ in zip(win, (h, w), strict=True)]
-    valid = np.zeros((h, w), bool)
-    valid[lo[0]:max(lo[0] + 1, h - lo[0]), lo[1]:max(lo[1] + 1, w - lo[1])] = True
+    lo = [min(k // 2, m - 1 - k // 2) for k, m in zip(win, (h, w), strict=True)]
+    fits = np.zeros((h, w), bool)
+    fits[lo[0]:max(lo[0] + 1, h - lo[0]), lo[1]:max(lo[1] + 1, w - lo[1])] = True
     centres = []
-    for _ in range(n):
-        masked = np.where(valid, density, -np.inf)
-        r, c = np.unravel_index(int(np.argmax(masked)), masked.shape)
-        if not np.isfinite(masked[r, c]):
-            break
-        centres.append(((r + 0.5) / h, (c + 0.5) / w))
-        valid[max(0, r - win[0]):r + win[0] + 1, max(0, c - win[1]):c + win[1] + 1] = False
+    for i in range(rows):
+        for j in range(cols):
+            cell = np.zeros((h, w), bool)
+            cell[i * h // rows:(i + 1) * h // rows, j * w // cols:(j + 1) * w // cols] = True
+            where = cell & fits
+            if not where.any():  # a window larger than the cell: the nearest fitting centre
+                where = fits
+            masked = np.where(where, density, -np.inf)
+            r, c = np.unravel_index(int(np.argmax(masked)), masked.shape)
+            centre = ((r + 0.5) / h, (c + 0.5) / w)
+            if centre not in centres:
+                centres.append(centre)
     return centres
 
 
@@ -257,6 +275,9 @@ def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float
                 crops.append(_crop_level(li, gray, box, lshape_full, lshape, intr,
                                          motion.model, level_blur, grid, offset, gain))
             lam_f = max(lambda_f * work_scale / s, 1e-4)
+            # the gradient term's smoothing keeps its width in the working copy's pixels:
+            # at the photo's resolution the noise of a gradient outweighs its signal
+            smoothing = GRADIENT_SMOOTHING * s / work_scale
             record = ScaleRecord(len(records or ()) + 1, lshape_full, level_blur, grid.size)
             if records is not None:
                 records.append(record)
@@ -278,7 +299,7 @@ def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float
                 term = None
                 for crop, latent in zip(crops, latents, strict=True):
                     t = data_term(crop, active, latent, None, 0.0, "xu",
-                                  salient=REFINE_SALIENT * 1.1 ** it)
+                                  salient=REFINE_SALIENT * 1.1 ** it, smoothing=smoothing)
                     term = t if term is None else term + t
                 weights, cost, n_lasso = solve_update(term, weights, active, lambda_w,
                                                       max_iter=REFINE_LASSO_ITER)
