@@ -59,7 +59,7 @@ def _estimate_motion(args, console: _Console, image, path: Path, curve=None, rea
     if curve is None:
         image, curve, reason = linear_input(args, image, path)
     shape = image.shape[:2]
-    max_blur = _max_blur(args.max_blur, shape)
+    max_blur = _max_blur(args.max_blur, shape, measure=True)
     focal_px, focal_source = _focal_px(args, path, shape)
     profiles = None
     if args.profiles is not None:
@@ -82,8 +82,12 @@ def estimate_summary(result, requested: str, max_blur: float, focal_source: str)
         f"{requested} fell back to {info.method}")
     described = ("no blur found (identity motion; if the photo is blurred, try a larger "
                  "--max-blur or another --model)" if info.no_blur else _describe(result.motion))
-    text = (f"{described} ({method}, max blur {max_blur:g} px, focal "
-            f"{info.focal_px:.0f} px from {focal_source}")
+    if info.blur_size:  # measured (no --max-blur)
+        text = (f"{described} ({method}, max blur {info.max_blur:.0f} px (measured: "
+                f"{info.blur_size})")
+    else:
+        text = f"{described} ({method}, max blur {info.max_blur:g} px"
+    text += f", focal {info.focal_px:.0f} px from {focal_source}"
     if info.n_profiles:
         text += f", {info.n_profiles} edge profiles"
         profiles = getattr(result, "profiles", None)

@@ -23,8 +23,12 @@ def _focal_px(args, path: Path, shape) -> tuple[float | None, str]:
     return None, "default"
 
 
-def _max_blur(value: float | None, shape) -> float:
-    """``--max-blur`` or the default for the image size, checked against the image."""
+def _max_blur(value: float | None, shape, measure: bool = False) -> float | None:
+    """``--max-blur`` or the default for the image size, checked against the image.
+
+    With ``measure`` and no ``--max-blur``, None: the estimator measures it from the
+    photo (:func:`~napari_edgecme.core.blur_size.measure_blur_extent`).
+    """
     half = min(shape[:2]) / 2
     if value is None:
         value = _estimate.default_max_blur(shape)
@@ -34,6 +38,8 @@ def _max_blur(value: float | None, shape) -> float:
         if value >= half:
             raise CLIError(f"image is {shape[0]}x{shape[1]} px: too small for the default "
                            f"--max-blur of {value:g} px; pass a --max-blur below {half:g}")
+        if measure:  # the estimator measures it (and falls back to that default)
+            return None
     return value
 
 

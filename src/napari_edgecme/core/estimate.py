@@ -140,6 +140,9 @@ class EstimateInfo:
     #: (Eq. 16; :meth:`~.profile_fit.RobustProfileFit.relative_misfit`); Xu+Ep: that of
     #: the EpAlone check on its profiles (:data:`XU_EP_GATE`)
     profile_misfit: float | None = None
+    #: what the blur-size measurement found when ``max_blur`` was not given, e.g. "blur
+    #: about 40 px, from 85 edge profiles" (:class:`~.blur_size.BlurSize`); None if given
+    blur_size: str | None = None
 
 
 @dataclass
@@ -211,8 +214,11 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     model : {"translation", "inplane", "rotation"}
         Pose model; ``"translation"`` is uniform (space-invariant) blind deblurring.
     max_blur : float, optional
-        Largest blur extent to look for, in pixels of ``image`` (default
-        :func:`default_max_blur`).
+        Largest blur extent to look for, in pixels of ``image``. By default it is
+        measured from the photo's edge profiles (:func:`~.blur_size.measure_blur_extent`,
+        then :func:`~.blur_size.max_blur_for`; ``info.blur_size`` says what was found,
+        e.g. "blur about 40 px, from 85 edge profiles"), falling back to
+        :func:`default_max_blur` when nothing can be measured.
     focal_px : float, optional
         Focal length in pixels of ``image`` (default: the 35 mm-equivalent default of
         :class:`~.camera.Intrinsics`).
@@ -252,13 +258,15 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     img = as_float_image(image, allow_rgb=True, min_size=8)
     gray = _luminance(img)
     shape = gray.shape
-    max_blur = default_max_blur(shape) if max_blur is None else check_positive(max_blur,
-                                                                               "max_blur")
-    if max_blur > min(shape) / 2:
-        raise ValueError(f"max_blur must be less than half the smaller image side "
-                         f"({min(shape) / 2:g} px); got {max_blur:g}")
-    if max_blur < 1:
-        raise ValueError(f"max_blur must be at least 1 pixel; got {max_blur:g}")
+    if max_blur is None and default_max_blur(shape) > min(shape) / 2:
+        max_blur = default_max_blur(shape)  # too small to measure in: refused below
+    if max_blur is not None:
+        max_blur = check_positive(max_blur, "max_blur")
+        if max_blur > min(shape) / 2:
+            raise ValueError(f"max_blur must be less than half the smaller image side "
+                             f"({min(shape) / 2:g} px); got {max_blur:g}")
+        if max_blur < 1:
+            raise ValueError(f"max_blur must be at least 1 pixel; got {max_blur:g}")
     lambda_w = _check_lambda(lambda_w, "lambda_w", DEFAULTS["lambda_w"], allow_zero=True)
     lambda_ip = _check_lambda(lambda_ip, "lambda_ip", DEFAULTS["lambda_ip"], allow_zero=True)
     lambda_f = _check_lambda(lambda_f, "lambda_f", DEFAULTS["lambda_f"])
@@ -273,6 +281,13 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     preview = check_bool(preview, "preview")
     refine = check_bool(refine, "refine")
     rng = as_rng(rng)
+    blur_size = None
+    if max_blur is None:  # measure it (a few seconds), on its own stream of random numbers
+        from .blur_size import max_blur_for, measure_blur_extent
+
+        yield Progress("estimate", 0, 1, "measuring the blur size from the edge profiles")
+        blur_size = measure_blur_extent(img, rng=rng.spawn(1)[0], max_side=max_side)
+        max_blur = max_blur_for(blur_size, shape)
     if method == "xu":
         lambda_ip = 0.0
     t_start = time.perf_counter()
@@ -291,6 +306,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     intr_work = intr_full.rescaled(work_shape)
     blur_work = max_blur * work_scale
     info = EstimateInfo(method, model, max_blur, intr_full.focal_px, work_scale)
+    if blur_size is not None:
+        info.blur_size = blur_size.message
 
     # -- edge profiles -------------------------------------------------------------
     scales = pyramid_scales(work_shape, blur_work, DEFAULTS["coarsest_blur"])
