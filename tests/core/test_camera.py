@@ -117,3 +117,16 @@ def test_unknown_model_is_named(intr):
         homographies("affine", intr, [[0, 0]])
     with pytest.raises(ValueError, match=r"shape \(n, 3\)"):
         homographies("rotation", intr, [[0, 0]])
+
+
+@pytest.mark.parametrize("shape", [(4000, 6000), (2828, 4243), (2830, 4241), (3456, 5184),
+                                   (4016, 6016), (2866, 4187)])
+def test_a_motion_found_on_the_working_copy_applies_back_to_camera_sizes(shape):
+    # the 1024 px working copy of these sizes rounds its short side; scaled back up ~4-6x
+    # that rounding used to fail the aspect check and crash `edgecme deblur`
+    copy = tuple(max(8, round(n * 1024 / max(shape))) for n in shape)
+    intr = Intrinsics.from_image_shape(copy)
+    back = intr.rescaled(shape)
+    assert back.image_shape == shape
+    with pytest.raises(ValueError, match="another aspect ratio"):
+        intr.rescaled((round(shape[0] * 1.1), shape[1]))

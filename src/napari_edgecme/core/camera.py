@@ -147,8 +147,10 @@ class Intrinsics:
         rows, cols = (int(s) for s in tuple(image_shape)[:2])
         r0, c0 = self.image_shape
         sy, sx = rows / r0, cols / c0
-        # shapes from rounding a scaled copy differ by at most one pixel per axis
-        if abs(sy - sx) > 1.0 / min(r0, c0) + 1.0 / min(rows, cols):
+        # shapes from rounding a scaled copy differ by at most half a pixel per axis, so
+        # the two scale factors agree to that share of each side (a relative test: an
+        # absolute one on sy - sx failed a 1024 px copy scaled back up to 6000x4000)
+        if abs(sy / sx - 1.0) > 1.0 / min(r0, c0) + 1.0 / min(rows, cols):
             raise ValueError(
                 f"image_shape {rows}x{cols} has another aspect ratio than the motion's "
                 f"{r0}x{c0}; a motion can only be applied to the same image or a resized copy"
