@@ -241,13 +241,13 @@ class PatchFourier:
         self.chunk = max(1, _CHUNK_BYTES // per_tile)
         self.kty = None
         self._y = None
-        self.khat = self.k2 = None
+        self.khat = None
         if build:
             for _ in self.iter_build():
                 pass
 
     def iter_build(self):
-        """Compute the tile PSFs' spectra ``khat`` and ``|khat|^2``, a chunk of tiles at a time.
+        """Compute the tile PSFs' spectra ``khat``, a chunk of tiles at a time.
 
         A generator yielding a record after each chunk (``step`` chunks of ``total``);
         returns None. Each tile's PSF is centred on its box's origin.
@@ -258,8 +258,6 @@ class PatchFourier:
         B0, B1 = self.box
         spec_dtype = np.result_type(self.dtype, np.complex64)
         self.khat = np.empty((self.n, *self._spec_shape), spec_dtype)
-        # |k|^2, each value repeated twice to match _rv(spectrum)
-        self.k2 = np.empty((self.n, B0, 2 * self._spec_shape[1]), self.dtype)
         chunks = list(self._chunks())
         for n_done, (_, sl) in enumerate(chunks, 1):
             kbox = np.zeros((sl.stop - sl.start, B0, B1), self.dtype)
@@ -267,7 +265,6 @@ class PatchFourier:
             kbox = np.roll(kbox, (-h, -h), axis=(1, 2))
             khat = self._rfft(kbox)
             self.khat[sl] = khat
-            self.k2[sl] = np.repeat(khat.real**2 + khat.imag**2, 2, axis=-1)
             yield Progress("tile spectra", n_done, len(chunks),
                            f"tile spectra {n_done}/{len(chunks)}")
 
@@ -323,6 +320,14 @@ class PatchFourier:
         up to the common factor 1 / (B0 B1) (Parseval)."""
         prod = _rv(a) * _rv(b)
         return (prod @ self._half_weights).sum(-1, dtype=np.float64)
+
+    def k2(self, tiles: slice) -> np.ndarray:
+        """``|khat|^2`` of some tiles, each value repeated twice to match ``_rv(spectrum)``.
+
+        Computed when needed (a chunk at a time) rather than kept: it would be as large
+        as ``khat`` (gigabytes for a large, fast-turning blur on a 24 MP photo)."""
+        khat = self.khat[tiles]
+        return np.repeat(khat.real**2 + khat.imag**2, 2, axis=-1).astype(self.dtype, copy=False)
 
     # -- data ---------------------------------------------------------------------
     def set_observation(self, g: np.ndarray) -> None:
@@ -395,7 +400,7 @@ class PatchFourier:
             prior_hat = None
             if prior_view is not None:
                 prior_hat = self._rfft(self._take(prior_view, tile_rows))
-            inv_den = lam_c * self.k2[sl]
+            inv_den = lam_c * self.k2(sl)
             inv_den += beta_c * self.d2
             np.reciprocal(inv_den, out=inv_den)
             xhat = self.kty[sl] * lam_c
