@@ -157,13 +157,15 @@ def test_deblur_checks_the_deconvolution_before_estimating(uniform_case):
 
 def test_records_come_between_the_steps_of_an_alternation(uniform_case):
     # a consumer can only cancel at a record: the latent update reports each splitting
-    # step and the MDF update announces itself, so a Cancel waits for one step at most
+    # step, the MDF update its data term and each FISTA iteration, so a Cancel waits for
+    # one step at most
     records = list(_records(iter_estimate_motion(uniform_case.blurred, "xu", "translation",
                                                  max_blur=9, n_iter=1)))
     latent = [r for r in records if r.message.endswith("latent image")]
     motion = [r for r in records if r.message.endswith("camera motion")]
     n_scales = records[-1].n_scales
-    assert len(motion) == n_scales and len(latent) >= 5 * n_scales
+    assert {(r.scale, r.iteration) for r in motion} == {(s, 1) for s in range(1, n_scales + 1)}
+    assert len(motion) >= 10 * n_scales and len(latent) >= 5 * n_scales
     assert [r.step for r in records] == sorted(r.step for r in records)
 
 

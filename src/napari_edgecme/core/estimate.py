@@ -45,7 +45,7 @@ import numpy as np
 from ._validation import as_float_image, as_rng, check_bool, check_choice, check_positive
 from .camera import MODELS, Intrinsics
 from .latent import iter_l0_latent
-from .mdf_update import edge_images, mdf_update
+from .mdf_update import edge_images, iter_mdf_update
 from .motion import CameraMotion
 from .photometry import LUMA
 from .profile_fit import EP_MAX_MISFIT, RobustProfileFit, check_coverage
@@ -296,6 +296,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     intr_full = Intrinsics.from_image_shape(shape, focal_px=focal_px)
     work_scale = min(1.0, max_side / max(shape))
     work_shape = tuple(max(8, round(s * work_scale)) for s in shape)
+    yield Progress("estimate", 0, 1, "preparing: the working copy")
     work_raw = resize(gray, work_shape)
     offset, gain = contrast_gain(work_raw)
     constant = float(np.ptp(work_raw)) < 1e-6
@@ -324,9 +325,12 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     work_profiles = None
     if method != "xu":
         if profiles is None:
-            from .edges import extract_edge_profiles
+            from .edges import iter_extract_edge_profiles
 
-            work_profiles = extract_edge_profiles(work_raw, blur_work, rng=rng)
+            work_profiles = yield from _repeating(
+                iter_extract_edge_profiles(work_raw, blur_work, rng=rng),
+                Progress("estimate", step, total, "preparing: edge profiles",
+                         n_scales=len(scales)))
             if method == "xu+ep":
                 work_profiles = _trusted(work_profiles, DEFAULTS["min_profiles"])
         else:
@@ -420,7 +424,10 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             # in-plane shake can cost 1.75x the identity where the truth costs 1.4x)
             comparable = False
             if method != "ep":
-                info.blind_cost, info.identity_cost = blind_costs(run.finest, motion, lambda_f)
+                info.blind_cost, info.identity_cost = yield from _repeating(
+                    iter_blind_costs(run.finest, motion, lambda_f),
+                    Progress("estimate", step, total, "checking the estimate against no blur",
+                             n_scales=len(scales)))
                 # the cost test needs an image with structure and an interior to compare on
                 comparable = math.isfinite(info.identity_cost) and info.identity_cost > 1e-12
             if extent < COLLAPSE_EXTENT or (
@@ -510,14 +517,15 @@ class _CoarseToFine:
                     # a record per splitting step: on a 1024 px copy an alternation
                     # takes seconds, and a consumer can only cancel at a record
                     self.latent = yield from _repeating(
-                        iter_l0_latent(level.blurred, level.motion(weights), lam_f),
+                        iter_l0_latent(level.blurred, level.motion(weights), lam_f, fine=True),
                         Progress("estimate", step, total, f"{where}: latent image", **at))
                     lam_f = max(lam_f / 1.1, 1e-4)
                     yield Progress("estimate", step, total, f"{where}: camera motion", **at)
-                weights, cost, n_lasso = mdf_update(level, weights, active, self.latent,
-                                                   ep_data, self.lambda_w, self.lambda_ip,
-                                                   method,
-                                                   salient=_SALIENT_START * 1.1 ** min(it, 24))
+                weights, cost, n_lasso = yield from _repeating(
+                    iter_mdf_update(level, weights, active, self.latent, ep_data,
+                                    self.lambda_w, self.lambda_ip, method,
+                                    salient=_SALIENT_START * 1.1 ** min(it, 24)),
+                    Progress("estimate", step, total, f"{where}: camera motion", **at))
                 if method == "ep":  # IRLS: each profile weighed by its agreement
                     ep_data.update(level.cache["measurement"], weights[active])
                     self.profile_misfit = ep_data.relative_misfit()
@@ -549,6 +557,11 @@ def _trusted(profiles, need: int):
 
 
 def blind_costs(level: Level, motion: CameraMotion, lambda_f: float) -> tuple[float, float]:
+    """:func:`iter_blind_costs` run to its end."""
+    return drive(iter_blind_costs(level, motion, lambda_f))
+
+
+def iter_blind_costs(level: Level, motion: CameraMotion, lambda_f: float):
     """The L0 blind-deblurring cost (Eq. 21) of ``motion`` and of the identity, per pixel.
 
     ``E(k) = ||T_k f_k - g||^2 / N + lambda_f ||grad f_k||_0 / N`` with ``f_k`` the L0
@@ -564,7 +577,6 @@ def blind_costs(level: Level, motion: CameraMotion, lambda_f: float) -> tuple[fl
         Both NaN when the level has no interior left to compare on (an image not much
         larger than its blur).
     """
-    from .latent import l0_latent
     from .operators import blur
 
     g = level.blurred
@@ -573,14 +585,17 @@ def blind_costs(level: Level, motion: CameraMotion, lambda_f: float) -> tuple[fl
         return float("nan"), float("nan")
     inner = (slice(band, -band), slice(band, -band))
 
-    def cost(k: CameraMotion) -> float:
-        f, (gx, gy) = l0_latent(g, k, lambda_f, return_gradients=True)
+    def cost(k: CameraMotion):
+        f, (gx, gy) = yield from iter_l0_latent(g, k, lambda_f, return_gradients=True,
+                                                fine=True)
         residual = blur(f, k)[inner] - g[inner]
         nonzero = (gx[inner] ** 2 + gy[inner] ** 2) > 0
         return float(np.mean(residual.astype(np.float64) ** 2) + lambda_f * np.mean(nonzero))
 
     identity = CameraMotion.identity(motion.model, level.intrinsics)
-    return cost(motion.rescale(level.shape)), cost(identity)
+    first = yield from cost(motion.rescale(level.shape))
+    second = yield from cost(identity)
+    return first, second
 
 
 def estimate_motion(image, method: str = "xu+ep", model: str = "rotation",

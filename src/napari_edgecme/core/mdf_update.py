@@ -13,13 +13,14 @@ import numpy as np
 from scipy import ndimage
 
 from .deconv_prior import grad
-from .lasso import nonneg_lasso
+from .lasso import iter_nonneg_lasso
 from .mdf import border_taper, edge_profile_term, gradient_term, psf_basis
 from .measurement import measurement_matrix
+from .progress import Progress, drive
 from .pyramid import Level, clean_mdf
 
-__all__ = ["GRADIENT_SMOOTHING", "LASSO_MAX_ITER", "data_term", "edge_images", "mdf_update",
-           "salient_gradients", "solve_update"]
+__all__ = ["GRADIENT_SMOOTHING", "LASSO_MAX_ITER", "data_term", "edge_images", "iter_mdf_update",
+           "iter_solve_update", "mdf_update", "salient_gradients", "solve_update"]
 
 #: FISTA iterations per MDF update.
 LASSO_MAX_ITER = 200
@@ -84,8 +85,8 @@ def mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_
     (weights, cost, lasso iterations)
         The cleaned MDF on ``level.grid`` (shape ``grid.counts``), the final lasso cost.
     """
-    term = data_term(level, active, latent, ep_data, lambda_ip, method, salient)
-    return solve_update(term, weights, active, lambda_w)
+    return drive(iter_mdf_update(level, weights, active, latent, ep_data, lambda_w,
+                                 lambda_ip, method, salient))
 
 
 def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient: float = 1.0,
@@ -132,19 +133,33 @@ def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient:
     return term
 
 
-def solve_update(term, weights, active, lambda_w, max_iter: int = LASSO_MAX_ITER):
-    """Solve the non-negative L1 problem of one MDF update and clean the result.
+def iter_mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_ip,
+                    method, salient: float = 1.0):
+    """:func:`mdf_update` as a generator: a record after the data term, one per FISTA
+    iteration of the lasso; returns what :func:`mdf_update` returns."""
+    term = data_term(level, active, latent, ep_data, lambda_ip, method, salient)
+    yield Progress("MDF update", 0, 1, "data term ready")
+    return (yield from iter_solve_update(term, weights, active, lambda_w))
 
-    ``term`` is normalised by its data energy first, so that ``lambda_w`` means the same at
-    every scale and image size. ``weights`` (shape of the grid) warm-starts the solver and
-    is returned unchanged when the L1 weight swallows everything. ``max_iter`` caps the
-    FISTA iterations.
-    """
+
+def iter_solve_update(term, weights, active, lambda_w, max_iter: int = LASSO_MAX_ITER):
+    """:func:`solve_update` as a solver generator: one record per FISTA iteration."""
     term = term.scaled(1.0 / max(term.constant, 1e-30))
-    result = nonneg_lasso(term, lambda_w, weights[active], max_iter=max_iter)
+    result = yield from iter_nonneg_lasso(term, lambda_w, weights[active], max_iter=max_iter)
     new = np.zeros(weights.shape)
     new[active] = result.x
     cost = result.costs[-1] if result.costs else float("nan")
     if not new.max() > 0:  # the L1 weight swallowed everything: keep the previous MDF
         return weights, cost, result.nit
     return clean_mdf(new), cost, result.nit
+
+
+def solve_update(term, weights, active, lambda_w, max_iter: int = LASSO_MAX_ITER):
+    """Solve the non-negative L1 problem of one MDF update and clean the result.
+
+    ``term`` is normalised by its data energy first, so that ``lambda_w`` means the same at
+    every scale and image size. ``weights`` (shape of the grid) warm-starts the solver and
+    is returned unchanged when the L1 weight swallows everything. ``max_iter`` caps the
+    FISTA iterations. The plain-function face of :func:`iter_solve_update`.
+    """
+    return drive(iter_solve_update(term, weights, active, lambda_w, max_iter))

@@ -38,7 +38,7 @@ from scipy import ndimage
 from .camera import Intrinsics, pose_grid
 from .deconv_prior import grad
 from .latent import iter_l0_latent
-from .mdf_update import GRADIENT_SMOOTHING, data_term, solve_update
+from .mdf_update import GRADIENT_SMOOTHING, data_term, iter_solve_update
 from .motion import CameraMotion
 from .progress import Progress, StopRequested
 from .pyramid import WEIGHT_FLOOR, Level, ScaleRecord, contrast_gain, dilate, resize
@@ -287,7 +287,7 @@ def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float
                 latents = []
                 for ci, crop in enumerate(crops):
                     gen = iter_l0_latent(crop.blurred, crop.motion(weights), lam_f,
-                                         kappa=REFINE_KAPPA)
+                                         kappa=REFINE_KAPPA, fine=True)
                     while True:
                         try:
                             next(gen)
@@ -297,12 +297,21 @@ def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float
                         yield Progress("estimate", step, total,
                                        f"{where}: latent image of crop {ci + 1}/{len(crops)}")
                 term = None
-                for crop, latent in zip(crops, latents, strict=True):
+                for ci, (crop, latent) in enumerate(zip(crops, latents, strict=True)):
                     t = data_term(crop, active, latent, None, 0.0, "xu",
                                   salient=REFINE_SALIENT * 1.1 ** it, smoothing=smoothing)
                     term = t if term is None else term + t
-                weights, cost, n_lasso = solve_update(term, weights, active, lambda_w,
-                                                      max_iter=REFINE_LASSO_ITER)
+                    yield Progress("estimate", step, total,
+                                   f"{where}: camera motion, crop {ci + 1}/{len(crops)}")
+                gen = iter_solve_update(term, weights, active, lambda_w,
+                                        max_iter=REFINE_LASSO_ITER)
+                while True:  # a record per FISTA iteration
+                    try:
+                        next(gen)
+                    except StopIteration as done:
+                        weights, cost, n_lasso = done.value
+                        break
+                    yield Progress("estimate", step, total, f"{where}: camera motion")
                 record.costs.append(cost)
                 record.active_poses.append(int(active.sum()))
                 record.lasso_iterations.append(n_lasso)
