@@ -10,6 +10,7 @@ quantisation) give the same numbers as doing everything at once.
 
 import numpy as np
 import pytest
+from test_deconv import run as records_of
 
 from napari_edgecme import Intrinsics
 from napari_edgecme.core import deconv, io
@@ -61,15 +62,6 @@ def work_counter(monkeypatch):
     monkeypatch.setattr(solvers.sfft, "irfft2", irfft2)
     monkeypatch.setattr(deconv, "LatentDomain", domain)
     return count
-
-
-def records_of(gen):
-    records = []
-    while True:
-        try:
-            records.append(next(gen))
-        except StopIteration as done:
-            return records, done.value
 
 
 # ---------------------------------------------------------------------------------------

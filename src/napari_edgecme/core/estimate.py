@@ -49,7 +49,7 @@ from .mdf_update import edge_images, iter_mdf_update
 from .motion import CameraMotion
 from .photometry import LUMA
 from .profile_fit import EP_MAX_MISFIT, RobustProfileFit, check_coverage
-from .progress import Progress, StopRequested, drive
+from .progress import Progress, StopRequested, drive, relay_as
 from .pyramid import (
     Level,
     ScaleRecord,
@@ -175,16 +175,6 @@ def _luminance(img: np.ndarray) -> np.ndarray:
     if img.ndim == 2:
         return img
     return img @ LUMA.astype(img.dtype)
-
-
-def _repeating(gen, record: Progress):
-    """Run ``gen`` to its end, yielding ``record`` at each of its yields; return its value."""
-    while True:
-        try:
-            next(gen)
-        except StopIteration as done:
-            return done.value
-        yield record
 
 
 #: Xu+Ep first runs EpAlone on its profiles and drops the edge-profile term (runs as
@@ -327,7 +317,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         if profiles is None:
             from .edges import iter_extract_edge_profiles
 
-            work_profiles = yield from _repeating(
+            work_profiles = yield from relay_as(
                 iter_extract_edge_profiles(work_raw, blur_work, rng=rng),
                 Progress("estimate", step, total, "preparing: edge profiles",
                          n_scales=len(scales)))
@@ -424,7 +414,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             # in-plane shake can cost 1.75x the identity where the truth costs 1.4x)
             comparable = False
             if method != "ep":
-                info.blind_cost, info.identity_cost = yield from _repeating(
+                info.blind_cost, info.identity_cost = yield from relay_as(
                     iter_blind_costs(run.finest, motion, lambda_f),
                     Progress("estimate", step, total, "checking the estimate against no blur",
                              n_scales=len(scales)))
@@ -516,12 +506,12 @@ class _CoarseToFine:
                 if method != "ep":
                     # a record per splitting step: on a 1024 px copy an alternation
                     # takes seconds, and a consumer can only cancel at a record
-                    self.latent = yield from _repeating(
+                    self.latent = yield from relay_as(
                         iter_l0_latent(level.blurred, level.motion(weights), lam_f, fine=True),
                         Progress("estimate", step, total, f"{where}: latent image", **at))
                     lam_f = max(lam_f / 1.1, 1e-4)
                     yield Progress("estimate", step, total, f"{where}: camera motion", **at)
-                weights, cost, n_lasso = yield from _repeating(
+                weights, cost, n_lasso = yield from relay_as(
                     iter_mdf_update(level, weights, active, self.latent, ep_data,
                                     self.lambda_w, self.lambda_ip, method,
                                     salient=_SALIENT_START * 1.1 ** min(it, 24)),

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Cancelled", "Progress", "StopRequested", "drive", "relay", "stop"]
+__all__ = ["Cancelled", "Progress", "StopRequested", "drive", "relay", "relay_as", "stop"]
 
 
 class StopRequested(Exception):
@@ -153,6 +153,15 @@ def relay(gen: Generator, relabel: Callable[[Progress], Progress]):
     finally:
         gen.close()
 
+
+
+def relay_as(gen: Generator, record: Progress):
+    """:func:`relay` with one fixed record: yield ``record`` for each of ``gen``'s records.
+
+    For a caller whose own record says what is running (a step of an estimator) while the
+    inner solver's records only mark where a stop may come in.
+    """
+    return (yield from relay(gen, lambda _inner: record))
 
 def stop(gen: Generator):
     """Ask a suspended solver generator to stop; return its estimate so far.

@@ -40,7 +40,7 @@ from .deconv_prior import grad
 from .latent import iter_l0_latent
 from .mdf_update import GRADIENT_SMOOTHING, data_term, iter_solve_update
 from .motion import CameraMotion
-from .progress import Progress, StopRequested
+from .progress import Progress, StopRequested, relay_as
 from .pyramid import WEIGHT_FLOOR, Level, ScaleRecord, contrast_gain, dilate, resize
 
 __all__ = ["CROP_SIDE", "N_CROPS", "REFINE_ITERATIONS", "REFINE_RATIO", "carried_weights",
@@ -286,16 +286,12 @@ def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float
                          f"{lshape_full[0]}), iteration {it + 1}/{REFINE_ITERATIONS}")
                 latents = []
                 for ci, crop in enumerate(crops):
-                    gen = iter_l0_latent(crop.blurred, crop.motion(weights), lam_f,
-                                         kappa=REFINE_KAPPA, fine=True)
-                    while True:
-                        try:
-                            next(gen)
-                        except StopIteration as done:
-                            latents.append(done.value)
-                            break
-                        yield Progress("estimate", step, total,
-                                       f"{where}: latent image of crop {ci + 1}/{len(crops)}")
+                    latent = yield from relay_as(
+                        iter_l0_latent(crop.blurred, crop.motion(weights), lam_f,
+                                       kappa=REFINE_KAPPA, fine=True),
+                        Progress("estimate", step, total,
+                                 f"{where}: latent image of crop {ci + 1}/{len(crops)}"))
+                    latents.append(latent)
                 term = None
                 for ci, (crop, latent) in enumerate(zip(crops, latents, strict=True)):
                     t = data_term(crop, active, latent, None, 0.0, "xu",
@@ -303,15 +299,10 @@ def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float
                     term = t if term is None else term + t
                     yield Progress("estimate", step, total,
                                    f"{where}: camera motion, crop {ci + 1}/{len(crops)}")
-                gen = iter_solve_update(term, weights, active, lambda_w,
-                                        max_iter=REFINE_LASSO_ITER)
-                while True:  # a record per FISTA iteration
-                    try:
-                        next(gen)
-                    except StopIteration as done:
-                        weights, cost, n_lasso = done.value
-                        break
-                    yield Progress("estimate", step, total, f"{where}: camera motion")
+                weights, cost, n_lasso = yield from relay_as(  # a record per FISTA iteration
+                    iter_solve_update(term, weights, active, lambda_w,
+                                      max_iter=REFINE_LASSO_ITER),
+                    Progress("estimate", step, total, f"{where}: camera motion"))
                 record.costs.append(cost)
                 record.active_poses.append(int(active.sum()))
                 record.lasso_iterations.append(n_lasso)
