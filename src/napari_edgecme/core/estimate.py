@@ -438,8 +438,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     if refine and not stopped and not info.no_blur and method != "ep" and work_scale < 1:
         total += refinement_steps(work_scale)
         motion, step, completed = yield from iter_refine_motion(
-            gray, motion, work_scale, max_blur, offset=offset, gain=gain, lambda_w=lambda_w,
-            lambda_f=lambda_f, step=step, total=total, records=info.scales)
+            gray, motion, work_scale, max_blur, offset=offset, gain=gain, work=work_raw,
+            lambda_w=lambda_w, lambda_f=lambda_f, step=step, total=total, records=info.scales)
         if not completed:
             stopped = True
             info.message += "; stopped during the full-resolution refinement"

@@ -211,7 +211,7 @@ def _crop_boxes(shape, level_shape, centres, side) -> list[tuple[int, int, int, 
 def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float,
                        max_blur: float, *, lambda_w: float, lambda_f: float,
                        offset: float | None = None, gain: float | None = None,
-                       centres=None, step: int = 0, total: int = 0,
+                       work: np.ndarray | None = None, centres=None, step: int = 0, total: int = 0,
                        records: list | None = None):
     """Refine ``motion`` at the photo's resolution, on crops (a progress generator).
 
@@ -231,6 +231,9 @@ def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float
     lambda_w, lambda_f : float
         As for the coarse-to-fine estimator (``lambda_f`` is its finest-level weight;
         here it is scaled by ``work_scale / scale`` as on the pyramid).
+    work : ndarray of shape (h, w), optional
+        The working copy of ``gray`` (the estimator's, so that it is not made twice),
+        for the default stretch and crops; made here when not given.
     centres : list of (float, float), optional
         Crop centres as fractions of the frame (default :func:`choose_crops`).
     step, total : int
@@ -254,8 +257,7 @@ def iter_refine_motion(gray: np.ndarray, motion: CameraMotion, work_scale: float
     scales = refinement_scales(work_scale)
     intr_full = motion.intrinsics.rescaled(shape)
     previous, prev_scale = motion, work_scale
-    work = None
-    if centres is None or offset is None or gain is None:
+    if work is None and (centres is None or offset is None or gain is None):
         work = resize(gray, tuple(max(8, round(n * work_scale)) for n in shape))
     if offset is None or gain is None:
         offset, gain = contrast_gain(work)
