@@ -198,6 +198,7 @@ BAD_ESTIMATION = [
     ({"max_blur": "5"}, "max_blur must be a positive number; got '5'"),
     ({"max_blur": True}, "max_blur must be a positive number; got True"),
     ({"lambda_w": -1}, "lambda_w must be a finite number >= 0; got -1"),
+    ({"refine": "yes"}, "refine must be True or False; got 'yes'"),
     ({"lambda_ip": -0.5}, "lambda_ip must be a finite number >= 0; got -0.5"),
     ({"lambda_f": 0}, "lambda_f must be a finite number > 0; got 0"),
     ({"lambda_f": -1e-3}, "lambda_f must be a finite number > 0; got -0.001"),
