@@ -13,7 +13,7 @@ from napari.utils import progress
 from napari_edgecme._widgets._psf_view import BACKGROUND, psf_glyphs
 from napari_edgecme._widgets.camera_motion import CameraMotionWidget, psf_grid
 from napari_edgecme.core.camera import Intrinsics
-from napari_edgecme.core.estimate import DEFAULTS, default_max_blur
+from napari_edgecme.core.estimate import DEFAULTS
 from napari_edgecme.core.motion import CameraMotion
 
 pytestmark = pytest.mark.gui
@@ -50,8 +50,10 @@ def test_defaults_are_the_engines(qtbot, viewer_model, edge_case):
     assert widget.image_combo.value is image
     assert widget.method_combo.value == "xu+ep"
     assert widget.model_combo.value == "rotation"
-    assert widget.max_blur.auto.isChecked()
-    assert widget.max_blur.spin.value() == default_max_blur(edge_case.blurred.shape)
+    assert widget.max_blur.auto.isChecked()  # measured when run: no value shown
+    assert widget.max_blur.value_for(edge_case.blurred.shape) is None
+    assert not widget.max_blur.spin.isEnabled()
+    assert widget.max_blur.spin.text() == "measured when run"
     assert widget.focal_auto.isChecked()
     assert widget.profiles_combo.value is None  # detect automatically
     assert widget.lambda_w.value() == pytest.approx(DEFAULTS["lambda_w"])

@@ -267,8 +267,10 @@ def test_a_users_choice_of_profiles_sticks(qtbot, detected):
     assert motion.profiles_combo.value is None
 
 
-def test_both_widgets_show_the_one_auto_max_blur_of_the_chosen_image(qtbot, viewer_model):
-    """Issue 15, item 3: the Edge profiles widget showed 15 px while detection used 27."""
+def test_on_auto_neither_widget_shows_a_value_it_will_not_use(qtbot, viewer_model):
+    """Issue 15, item 3 (the widget showed 15 px while detection used 27), and issue 14:
+    auto is measured when run, so the box shows no number; unchecking auto starts from
+    the default for the chosen image (4% of its longer side, at least 15 px)."""
     from napari_edgecme.core.estimate import default_max_blur
 
     photo = viewer_model.add_image(np.zeros((406, 679), np.float32), name="photo")
@@ -278,17 +280,25 @@ def test_both_widgets_show_the_one_auto_max_blur_of_the_chosen_image(qtbot, view
     for widget in (profiles, motion):
         qtbot.addWidget(widget)
     assert default_max_blur((406, 679)) == 27.0
-    for widget in (profiles, motion):
-        assert widget.image_combo.value is photo and widget.max_blur.auto.isChecked()
-        assert widget.max_blur.spin.value() == 27.0
-        assert widget.max_blur.value_for((406, 679)) == 27.0
     small = viewer_model.add_image(np.zeros((200, 120), np.float32), name="small")
     for widget in (profiles, motion):
+        control = widget.max_blur
+        assert widget.image_combo.value is photo and control.auto.isChecked()
+        assert control.value_for((406, 679)) is None  # the run measures it
+        assert not control.spin.isEnabled() and control.spin.text() == "measured when run"
+        assert "measured from the image" in control.spin.toolTip()
+        control.auto.setChecked(False)
+        assert control.spin.isEnabled() and control.spin.value() == 27.0
+        assert control.value_for((406, 679)) == 27.0
+        control.spin.setValue(12.0)
+        assert control.value_for((406, 679)) == 12.0
+        control.auto.setChecked(True)
+        assert control.spin.text() == "measured when run"
         widget.reset_choices()
         widget.image_combo.value = small
-        assert widget.max_blur.spin.value() == default_max_blur((200, 120)) == 15.0
-        widget.image_combo.value = photo
-        assert widget.max_blur.spin.value() == 27.0
+        control.auto.setChecked(False)
+        assert control.spin.value() == default_max_blur((200, 120)) == 15.0
+        control.auto.setChecked(True)
 
 
 def test_the_count_and_status_describe_the_chosen_image(qtbot, detected, wait_for_run):

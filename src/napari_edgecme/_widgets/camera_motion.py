@@ -21,6 +21,12 @@ light: the estimation runs on the image in linear light
 (:func:`._gamma.estimate_in_linear_light`), the latent image and its previews are
 shown encoded as the photo is, and ``estimate.info`` (and the layers'
 ``metadata["edgecme_estimate"]``) record the curve and why.
+
+The "max blur" on auto (:class:`._max_blur.MaxBlurControl`) is measured from the image
+by the engine, in the worker (``max_blur=None`` to
+:func:`~napari_edgecme.core.estimate.iter_estimate_motion`): the status line and
+``metadata["edgecme_estimate"]["blur_size"]`` say what was found ("max blur 18 px
+(measured: blur about 9 px, from 40 edge profiles)"), as ``edgecme deblur`` does.
 """
 
 from __future__ import annotations
@@ -68,10 +74,11 @@ from ._layers import (
     resampled_kwargs,
     snapshot_image,
 )
-from ._max_blur import MaxBlurControl
+from ._max_blur import MaxBlurControl, measured_note
 from ._plots import deferred_draw, plot_canvas, style_axes, theme_colours
 from ._psf_view import psf_glyphs
 from ._runner import RunControls
+from .edge_profiles import SETTINGS_KEY as PROFILE_SETTINGS_KEY
 
 __all__ = ["METHOD_CHOICES", "MODEL_CHOICES", "CameraMotionWidget", "psf_grid"]
 
@@ -261,7 +268,6 @@ class CameraMotionWidget(QWidget):
         if layer is None:
             self.focal_hint.setText("")
             return
-        self.max_blur.refresh()
         self._update_focal_hint()
         # offer the image's own (hand-edited) profiles once; a later choice of the user sticks
         own = next((shapes for _name, shapes in self._profile_choices()[1:]
@@ -311,14 +317,15 @@ class CameraMotionWidget(QWidget):
             focal_px = focal_from_layer(image)[0]
         else:
             focal_px = float(self.focal_spin.value())
-        max_blur = self.max_blur.value_for(data.shape)
+        max_blur = self.max_blur.value_for(data.shape)  # None on auto: the engine measures
         preview = self.preview_check.isChecked() and method != "ep"
         gen = estimate_in_linear_light(
             data, curve, reason, method, model, max_blur, focal_px, profiles,
             lambda_w=self.lambda_w.value(), lambda_ip=self.lambda_ip.value(),
             lambda_f=self.lambda_f.value(), n_iter=self.n_iter.value(),
             max_side=self.max_side.value(), preview=preview, rng=self.seed.value())
-        self.runner.start(gen, on_result=partial(self._show_result, image),
+        self.runner.start(gen, on_result=partial(self._show_result, image,
+                                                 self._profiles_gamma(profiles)),
                           on_preview=partial(self._show_preview, image), on_end=self._end)
 
     def cancel(self) -> None:
@@ -340,6 +347,15 @@ class CameraMotionWidget(QWidget):
                 f"{profiles.image_shape[0]}x{profiles.image_shape[1]} image; this image is "
                 f"{shape[0]}x{shape[1]}")
         return profiles
+
+    def _profiles_gamma(self, profiles) -> str | None:
+        """The curve the chosen profiles layer was taken through (None: detected
+        automatically, or not recorded)."""
+        layer = self.profiles_combo.value
+        if profiles is None or layer is None:
+            return None
+        settings = layer.metadata.get(PROFILE_SETTINGS_KEY)
+        return settings.get("gamma") if isinstance(settings, dict) else None
 
     # -- main-thread handlers -----------------------------------------------------------------
     def _show_preview(self, image: Image, record: Progress) -> None:
@@ -369,14 +385,14 @@ class CameraMotionWidget(QWidget):
         if active is not None and active in layers:
             layers.selection.active = active
 
-    def _show_result(self, image: Image, result: Estimated) -> str:
+    def _show_result(self, image: Image, profiles_gamma: str | None, result: Estimated) -> str:
         estimate, latent = result.estimate, result.latent
         motion, info = estimate.motion, estimate.info
         summary = {"method": info.method, "model": info.model, "max_blur": info.max_blur,
                    "focal_px": info.focal_px, "n_profiles": info.n_profiles,
                    "seconds": round(info.seconds, 3), "converged": info.converged,
-                   "message": info.message, "gamma": info.gamma,
-                   "gamma_reason": info.gamma_reason}
+                   "message": info.message, "blur_size": info.blur_size,
+                   "gamma": info.gamma, "gamma_reason": info.gamma_reason}
         meta = {MOTION_KEY: motion.to_dict(), SOURCE_KEY: image.name, ESTIMATE_KEY: summary}
         glyphs = psf_glyphs(motion, psf_grid(motion.image_shape))
         self._viewer.add_layer(Image(
@@ -403,19 +419,27 @@ class CameraMotionWidget(QWidget):
         self._last_name = image.name
         self.save_button.setEnabled(True)
         self._plot_motion(motion)
-        # the curve, unless it is the layers' default (linear, as chosen)
+        # what auto measured, and the curve unless it is the layers' default (linear, as
+        # chosen)
+        measured = ""
+        if info.blur_size:
+            measured = f"; {measured_note(info.max_blur, info.blur_size)}"
+            self.max_blur.show_measured(image, info.max_blur)
         gamma = ("" if info.gamma == "linear" and info.gamma_reason == GIVEN
                  else f"; {gamma_note(info.gamma, info.gamma_reason)}")
+        if profiles_gamma is not None and profiles_gamma != info.gamma:
+            gamma += f"; the edge profiles were taken with gamma {profiles_gamma}"
         if info.no_blur:
             return (f"no blur found ({info.seconds:.1f} s): the motion is the identity. If the "
-                    f"photo is blurred, try a larger max blur or another model{gamma}")
+                    f"photo is blurred, try a larger max blur or another model"
+                    f"{measured}{gamma}")
         text = (f"{motion.n_poses} poses, blur extent {motion.blur_extent():.1f} px (longest "
                 f"side of the PSFs) "
                 f"({info.seconds:.1f} s); PSF field: each PSF drawn "
                 f"{glyphs.enlargement}x its size")
         if info.message.startswith("fell back"):
             text += f"; {info.message.split(';')[0]}"
-        return text + gamma
+        return text + measured + gamma
 
     def _end(self, outcome: str) -> None:
         # the live preview is transient: a cancelled or failed run leaves no layer behind

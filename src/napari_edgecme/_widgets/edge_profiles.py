@@ -19,6 +19,18 @@ Editing the Shapes layer edits the set: a line drawn across an edge is measured 
 its centroid) or refused with the reason as a notification; deleting lines deletes
 their profiles. The docked plot shows the selected profiles (or all of them) and
 their derivatives.
+
+The "gamma" choice (:class:`._gamma.GammaControl`, as in the "Camera motion" and
+"Deconvolution" widgets: linear, the default for layers; sRGB; a power law; auto from
+the layer's source file) says how the layer's values encode light: profiles are taken
+from the image in linear light, where a blurred step is the PSF's integral (on sRGB
+values it is bent). Lines drawn by hand are measured in the same light as the set they
+join. "Max blur" on auto is measured from the image in the worker
+(:func:`~napari_edgecme.core.blur_size.measure_blur_extent`, then
+:func:`~napari_edgecme.core.blur_size.max_blur_for`, as the engine does when estimating);
+the status line says what was found. The Shapes layer's
+``metadata["edgecme_profile_settings"]`` records the max blur, the measurement, and the
+curve and why (``gamma``, ``gamma_reason``).
 """
 
 from __future__ import annotations
@@ -45,10 +57,14 @@ from qtpy.QtWidgets import (
 )
 from superqt import QCollapsible
 
-from ..core._validation import first_line
+from ..core._validation import as_rng, first_line
+from ..core.blur_size import BlurSize, max_blur_for, measure_blur_extent
 from ..core.edges import EdgeProfiles, extract_edge_profiles, profile_along_line
+from ..core.estimate import default_max_blur
+from ..core.photometry import Gamma, parse_gamma
 from ..core.progress import Progress
 from ._dock import Connections, dock_layout
+from ._gamma import GIVEN, GammaControl, gamma_note
 from ._layers import (
     PROFILES_KEY,
     SOURCE_KEY,
@@ -57,16 +73,19 @@ from ._layers import (
     snapshot_image,
     spatial_kwargs,
 )
-from ._max_blur import MaxBlurControl
+from ._max_blur import MaxBlurControl, measured_note
 from ._plots import deferred_draw, plot_canvas
 from ._runner import RunControls
 
-__all__ = ["EdgeProfilesWidget", "iter_detect"]
+__all__ = ["SETTINGS_KEY", "Detected", "EdgeProfilesWidget", "iter_detect"]
 
 logger = logging.getLogger(__name__)
 
 #: Metadata key of the origin of each profile, ``"detected"`` or ``"hand"`` (shape order).
 ORIGIN_KEY = "edgecme_profile_origin"
+#: Metadata key of how the set was taken: ``{"max_blur", "blur_size", "gamma",
+#: "gamma_reason"}`` (``blur_size``: what auto measured, else None).
+SETTINGS_KEY = "edgecme_profile_settings"
 _ROLE_KEY = "edgecme_role"
 _CENTROIDS_ROLE = "profile centroids"
 _QUALITY_CMAP = "viridis"
@@ -74,16 +93,54 @@ _DRAW_COLOUR = "#ff8c00"  # a line being drawn, before it is measured
 _MAX_PLOTTED = 60
 
 
-def iter_detect(image: np.ndarray, max_blur: float, rng=0):
-    """:func:`extract_edge_profiles` in the engine's generator protocol (one record).
+@dataclass(frozen=True)
+class Detected:
+    """What :func:`iter_detect` returns.
 
-    Detection is one call that takes a fraction of a second on photos of common
-    size, so it reports once; a cancel is honoured when it returns.
+    Attributes
+    ----------
+    profiles : EdgeProfiles
+    max_blur : float
+        The max blur they were extracted with (px).
+    blur_size : BlurSize or None
+        What was measured when no max blur was given.
     """
-    yield Progress("profiles", 0, 1, "detecting edge profiles")
-    profiles = extract_edge_profiles(image, max_blur, rng=rng)
-    yield Progress("profiles", 1, 1, f"{len(profiles)} edge profiles")
-    return profiles
+
+    profiles: EdgeProfiles
+    max_blur: float
+    blur_size: BlurSize | None = None
+
+
+def iter_detect(image: np.ndarray, max_blur: float | None = None, rng=0,
+                curve: Gamma | None = None):
+    """:func:`extract_edge_profiles` in the engine's generator protocol.
+
+    A generator, for the worker thread. ``image`` (its values as stored) is decoded
+    through ``curve`` first (None: taken as linear light). With ``max_blur`` None it is
+    measured from the image as the engine does when estimating
+    (:func:`~napari_edgecme.core.blur_size.measure_blur_extent` on its own stream of
+    random numbers, then :func:`~napari_edgecme.core.blur_size.max_blur_for`) -- except
+    on an image too small for the default max blur, which gets that default (and the
+    extraction says it is too small). Detection is one call that takes a fraction of a
+    second on photos of common size, so it reports once; a cancel is honoured when it
+    returns. Returns a :class:`Detected`.
+    """
+    work = image if curve is None or curve.is_linear else curve.decode(image)
+    rng = as_rng(rng)
+    size, step, steps = None, 0, 1
+    if max_blur is None:
+        shape = work.shape[:2]
+        max_blur = default_max_blur(shape)
+        if max_blur <= min(shape) / 2:
+            step, steps = 1, 2
+            yield Progress("profiles", 0, steps,
+                           "measuring the blur size from the edge profiles")
+            size = measure_blur_extent(work, rng=rng.spawn(1)[0])
+            max_blur = max_blur_for(size, shape)
+    yield Progress("profiles", step, steps, "detecting edge profiles")
+    profiles = extract_edge_profiles(work, max_blur, rng=rng)
+    yield Progress("profiles", steps, steps, f"{len(profiles)} edge profiles")
+    return Detected(profiles, float(max_blur), size)
 
 
 @dataclass
@@ -101,6 +158,16 @@ class _ProfileLayers:
     @property
     def origins(self) -> list[str]:
         return list(self.shapes.metadata.get(ORIGIN_KEY, ["detected"] * len(self.profiles)))
+
+    @property
+    def curve(self) -> Gamma:
+        """The transfer curve the set was taken through (linear if not recorded)."""
+        settings = self.shapes.metadata.get(SETTINGS_KEY) or {}
+        try:
+            curve = parse_gamma(settings.get("gamma", "linear"))
+        except ValueError:
+            curve = Gamma.linear()
+        return curve if isinstance(curve, Gamma) else Gamma.linear()
 
 
 def profile_lines(profiles: EdgeProfiles) -> np.ndarray:
@@ -141,6 +208,7 @@ class EdgeProfilesWidget(QWidget):
         self.image_combo = ComboBox(label="image", choices=self._image_choices)
         self.image_combo.native.setToolTip("2-D gray or RGB image layer to take profiles from")
         self.max_blur = MaxBlurControl(self.image_combo)
+        self.gamma = GammaControl(self.image_combo)
         self.controls = RunControls(
             self, "Edge profiles", run_text="Detect",
             run_tip="Find straight edges and measure how each is blurred across (edge "
@@ -182,6 +250,7 @@ class EdgeProfilesWidget(QWidget):
 
         form = QFormLayout()
         form.addRow("image", self.image_combo.native)
+        form.addRow("gamma", self.gamma)
         form.addRow("max blur", self.max_blur)
         edit_row = QHBoxLayout()
         edit_row.addWidget(self.pick_button)
@@ -211,7 +280,6 @@ class EdgeProfilesWidget(QWidget):
         """Refresh the layer choices (napari calls this when layers change)."""
         self.image_combo.reset_choices()
         self._sync_attached()
-        self.max_blur.refresh()
         self._follow_image(self.image_combo.value)
 
     def _on_image_changed(self, layer) -> None:
@@ -240,12 +308,14 @@ class EdgeProfilesWidget(QWidget):
             return
         try:
             data = snapshot_image(image)
+            curve, reason = self.gamma.resolve(image, data)
         except ValueError as err:
             self.runner.refuse(first_line(err))
             return
-        max_blur = self.max_blur.value_for(data.shape)
-        self.runner.start(iter_detect(data, max_blur),
-                          on_result=lambda profiles: self._show_detected(image, profiles))
+        max_blur = self.max_blur.value_for(data.shape)  # None on auto: measured
+        self.runner.start(iter_detect(data, max_blur, curve=curve),
+                          on_result=lambda found: self._show_detected(image, found, curve,
+                                                                      reason))
 
     def cancel(self) -> None:
         """Stop a running detection (nothing changes)."""
@@ -257,11 +327,18 @@ class EdgeProfilesWidget(QWidget):
         if image is None:
             show_error("Edge profiles: choose an image layer first")
             return
-        shape = image_shape(image)
-        rec = self._record_for_image(image) or self._create_layers(
-            image, EdgeProfiles.empty("no profiles picked yet", image_shape=shape,
-                                      max_blur=self.max_blur.value_for(shape)),
-            [])
+        rec = self._record_for_image(image)
+        if rec is None:
+            try:
+                curve, reason = self.gamma.resolve(image)
+            except ValueError as err:
+                show_error(f"Edge profiles: {first_line(err)}")
+                return
+            max_blur = self.max_blur.value_or_default_for(image)
+            rec = self._create_layers(
+                image, EdgeProfiles.empty("no profiles picked yet",
+                                          image_shape=image_shape(image), max_blur=max_blur),
+                [], _settings(max_blur, None, curve, reason))
         self._set_current(rec)
         self._viewer.layers.selection.active = rec.shapes
         rec.shapes.mode = "add_line"
@@ -296,36 +373,72 @@ class EdgeProfilesWidget(QWidget):
         return None if rec is None else (rec.shapes, rec.points)
 
     # -- results ---------------------------------------------------------------------------
-    def _show_detected(self, image: Image, detected: EdgeProfiles) -> str:
+    def _show_detected(self, image: Image, found: Detected, curve: Gamma, reason: str) -> str:
+        detected = found.profiles
+        settings = _settings(found.max_blur, found.blur_size, curve, reason)
+        if found.blur_size is not None:
+            used = measured_note(found.max_blur, found.blur_size.message)
+            self.max_blur.show_measured(image, found.max_blur)
+        else:
+            used = f"max blur {found.max_blur:g} px"
+        # the curve, unless it is the layers' default (linear, as chosen)
+        if not (curve.is_linear and reason == GIVEN):
+            used += f"; {gamma_note(curve, reason)}"
         rec = self._record_for_image(image)
-        hand = EdgeProfiles.empty("none")
+        hand, refused = EdgeProfiles.empty("none"), []
         if rec is not None:  # hand picks survive a new detection
             keep = np.array([o == "hand" for o in rec.origins], bool)
             hand = rec.profiles.select(keep)
+            if len(hand) and rec.curve != curve:  # in the light of the new set
+                hand, refused = self._remeasure(image, hand, curve)
+        for why in refused:
+            show_warning(f"Edge profiles: a hand-picked profile was dropped: measured "
+                         f"with gamma {curve} it is refused: {why}")
         if len(detected) == 0 and len(hand) == 0:
             show_warning(f"Edge profiles: no usable edge profiles in {image.name!r}: "
                          f"{detected.reason}")
             if rec is not None:
+                rec.shapes.metadata[SETTINGS_KEY] = settings
                 self._render(rec, detected, [])
                 self._set_current(rec)
-            return f"no profiles ({detected.reason})"
+            return f"no profiles ({detected.reason}; {used})"
         profiles = EdgeProfiles.concatenate([detected, hand]) if len(hand) else detected
         origins = ["detected"] * len(detected) + ["hand"] * len(hand)
         if rec is None:
-            rec = self._create_layers(image, profiles, origins)
+            rec = self._create_layers(image, profiles, origins, settings)
         else:
+            rec.shapes.metadata[SETTINGS_KEY] = settings
             self._render(rec, profiles, origins)
         self._set_current(rec)
-        used = "" if detected.max_blur is None else f" (max blur {detected.max_blur:g} px)"
-        return f"{len(detected)} edge profiles detected in {image.name!r}{used}"
+        return f"{len(detected)} edge profiles detected in {image.name!r} ({used})"
 
-    def _create_layers(self, image: Image, profiles: EdgeProfiles, origins) -> _ProfileLayers:
+    def _remeasure(self, image: Image, hand: EdgeProfiles, curve: Gamma):
+        """The hand-picked ``hand`` measured again along their lines, on ``image``
+        decoded through ``curve``: (kept profiles, reasons of the refused ones)."""
+        pixels = _linear_pixels(image, curve)
+        kept, refused = [], []
+        for start, end in profile_lines(hand):
+            try:
+                one = profile_along_line(pixels, start, end, max_blur=hand.max_blur)
+            except ValueError as err:
+                refused.append(first_line(err))
+                continue
+            if len(one):
+                kept.append(one)
+            else:
+                refused.append(one.reason)
+        if not kept:
+            return EdgeProfiles.empty("none"), refused
+        return EdgeProfiles.concatenate(kept), refused
+
+    def _create_layers(self, image: Image, profiles: EdgeProfiles, origins,
+                       settings: dict) -> _ProfileLayers:
         shape = image_shape(image)
         width = max(1.0, max(shape) / 300.0)
         shapes = Shapes(ndim=2, name=f"{image.name} edge profiles", edge_width=width,
                         edge_color=_DRAW_COLOUR, face_color="transparent",
                         metadata={SOURCE_KEY: image.name, PROFILES_KEY: profiles,
-                                  ORIGIN_KEY: list(origins)},
+                                  ORIGIN_KEY: list(origins), SETTINGS_KEY: dict(settings)},
                         **spatial_kwargs(image))
         points = _centroids_layer(image)
         # attached before they are added: adding them makes napari reset the choices,
@@ -457,9 +570,9 @@ class EdgeProfilesWidget(QWidget):
         if not picks and kept == list(range(len(old))):
             return  # nothing changed (e.g. a line re-selected)
         accepted, refused = [], []
-        if picks:
-            image = np.asarray(rec.image.data)
-            max_blur = old.max_blur or self.max_blur.value_for(image.shape)
+        if picks:  # measured in the light of the set
+            image = _linear_pixels(rec.image, rec.curve)
+            max_blur = old.max_blur or self.max_blur.value_or_default_for(rec.image)
             for data, kind in picks:
                 if kind != "line" or len(data) != 2:
                     refused.append(f"a {kind} is not a line; draw lines across edges")
@@ -567,6 +680,20 @@ class EdgeProfilesWidget(QWidget):
             ax_d.set_ylim(0.0, 1.08 * max(top, 1e-3))
         self.plot_caption.setText(caption)
         self._redraw()
+
+
+def _settings(max_blur: float | None, blur_size: BlurSize | None, curve: Gamma,
+              reason: str) -> dict:
+    """The Shapes layer's :data:`SETTINGS_KEY` entry (plain data: it survives saving)."""
+    return {"max_blur": None if max_blur is None else float(max_blur),
+            "blur_size": None if blur_size is None else blur_size.message,
+            "gamma": curve.name, "gamma_reason": reason}
+
+
+def _linear_pixels(layer: Image, curve: Gamma) -> np.ndarray:
+    """An image layer's pixels (alpha dropped) in linear light through ``curve``."""
+    data = snapshot_image(layer)
+    return data if curve.is_linear else curve.decode(data)
 
 
 def _centroids_layer(image: Image) -> Points:
