@@ -339,6 +339,37 @@ def test_profiles_writes_a_profile_file_and_a_plot(cd, capsys):
     assert read_image("p.png").ndim == 3  # a matplotlib figure
 
 
+def test_profiles_without_max_blur_measure_it_as_deblur_does(cd, capsys):
+    """Issue 14: ``profiles`` measured nothing (4% of the side); now it measures as the
+    estimator does -- the same numbers for the same photo and seed -- and says so."""
+    from napari_edgecme.core._validation import as_rng
+    from napari_edgecme.core.blur_size import max_blur_for, measure_blur_extent
+
+    status, _, err = run(["profiles", "blurred.png", "-o", "p.json"], capsys)
+    assert status == 0, err
+    profiles = EdgeProfiles.load("p.json")
+    image = read_image("blurred.png")
+    size = measure_blur_extent(image, rng=as_rng(0).spawn(1)[0])
+    assert profiles.max_blur == pytest.approx(max_blur_for(size, image.shape))
+    note = f"max blur {profiles.max_blur:.0f} px (measured: {size.message})"
+    assert err[-2].startswith(f"edgecme: {len(profiles)} edge profiles ({note}, ")
+    # measured here: blur about 16 px (true 9 px: short blurs read long on this 128 px
+    # scene, the sharp edges' own width adds to each transition), max blur 32 px; the
+    # engine's own accuracy claims are in tests/core/test_blur_size.py
+    truth = CameraMotion.load("truth.json").blur_extent()
+    assert 1.3 * truth <= profiles.max_blur <= 4.0 * truth
+    assert size.source == "edge profiles"
+    # estimate measures the same: one measurement, two commands
+    status, _, err = run(["estimate", "blurred.png", "-o", "m.json", "--method", "ep",
+                          "--model", "inplane"], capsys)
+    assert status == 0, err
+    assert note in err[-1]
+    # a given --max-blur is used as given, and not called measured
+    status, _, err = run(["profiles", "blurred.png", "-o", "p.json", "--max-blur", "13"],
+                         capsys)
+    assert "(max blur 13 px, " in err[-2] and "measured" not in err[-2]
+
+
 def test_a_plot_that_cannot_be_drawn_never_costs_the_profiles(cd, capsys, monkeypatch):
     def broken(self, *args, **kwargs):
         raise RuntimeError("no display backend\nsecond line")
@@ -519,6 +550,8 @@ BAD = {
                            "max_blur must be less than half the smaller image side"),
     "image too small for the default": (["estimate", "tiny.png", "-o", "out.json"],
                                         "too small for the default --max-blur"),
+    "profiles of an image too small for the default": (
+        ["profiles", "tiny.png", "-o", "p.json"], "too small for the default --max-blur"),
     "stack": (["deblur", "stack.tif", "-o", "out.png"], "expected a gray or RGB image"),
     "NaN pixels": (["deconvolve", "nan.tif", "--motion", "nan-truth.json", "-o", "out.tif"],
                    "non-finite values"),

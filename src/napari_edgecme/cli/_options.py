@@ -26,8 +26,10 @@ def _focal_px(args, path: Path, shape) -> tuple[float | None, str]:
 def _max_blur(value: float | None, shape, measure: bool = False) -> float | None:
     """``--max-blur`` or the default for the image size, checked against the image.
 
-    With ``measure`` and no ``--max-blur``, None: the estimator measures it from the
-    photo (:func:`~napari_edgecme.core.blur_size.measure_blur_extent`).
+    With ``measure`` and no ``--max-blur``, None: it is measured from the photo (by the
+    estimator in ``deblur``, ``estimate`` and ``batch``, by ``profiles`` itself:
+    :func:`~napari_edgecme.core.blur_size.measure_blur_extent`), after the same checks
+    of the image's size against the default it falls back to.
     """
     half = min(shape[:2]) / 2
     if value is None:

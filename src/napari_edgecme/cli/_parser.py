@@ -78,8 +78,9 @@ def _add_estimation(parser, profiles: bool = True) -> None:
                        help="pose model: uniform blur, in-plane shake, or 3-D camera "
                             "rotation (default: %(default)s)")
     group.add_argument("--max-blur", type=_number(), metavar="PX",
-                       help="largest blur extent to look for, in pixels (default: 4%% of the "
-                            "longer image side, at least 15)")
+                       help="largest blur extent to look for, in pixels (default: measured "
+                            "from the photo's edge profiles, 2x the blur found; 4%% of the "
+                            "longer side, at least 15, when too few edges are found)")
     group.add_argument("--focal-px", type=_number(), metavar="F",
                        help="focal length in pixels (default: from the EXIF 35 mm-equivalent "
                             "focal length, else a 35 mm-equivalent of 35 mm)")
@@ -250,8 +251,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=Path, required=True, metavar="PROFILES.json",
                    help="profile file to write")
     p.add_argument("--max-blur", type=_number(), metavar="PX",
-                   help="largest blur extent, in pixels (default: 4%% of the longer side, "
-                        "at least 15)")
+                   help="largest blur extent, in pixels (default: measured from the photo's "
+                        "edge profiles as in 'deblur', 2x the blur found; 4%% of the longer "
+                        "side, at least 15, when too few edges are found)")
     p.add_argument("--plot", type=Path, metavar="PNG",
                    help="also plot the profiles and their derivatives (needs matplotlib)")
     p.add_argument("--seed", type=_number(int, allow_zero=True), default=0, metavar="N",

@@ -41,6 +41,8 @@ def _figure_formats() -> set[str]:
 
 
 def cmd_profiles(args, console: _Console) -> int:
+    from ..core._validation import as_rng
+    from ..core.blur_size import max_blur_for, measure_blur_extent
     from ..core.edges import extract_edge_profiles
 
     path = _existing_input(args.image, "image")
@@ -55,9 +57,16 @@ def cmd_profiles(args, console: _Console) -> int:
         outputs.append(("--plot", args.plot))
     _distinct([("IMAGE", path)], outputs)
     image = read_input_image(path, console)
-    max_blur = _max_blur(args.max_blur, image.shape)
+    max_blur = _max_blur(args.max_blur, image.shape, measure=True)
     t0 = time.perf_counter()
-    profiles = extract_edge_profiles(image, max_blur, rng=args.seed)
+    rng = as_rng(args.seed)
+    if max_blur is None:  # measured as deblur's estimator does (its stream of the seed)
+        size = measure_blur_extent(image, rng=rng.spawn(1)[0])
+        max_blur = max_blur_for(size, image.shape)
+        used = f"max blur {max_blur:.0f} px (measured: {size.message})"
+    else:
+        used = f"max blur {max_blur:g} px"
+    profiles = extract_edge_profiles(image, max_blur, rng=rng)
     seconds = time.perf_counter() - t0
     with _writing(args.output) as (tmp,):  # the profiles first: a plot must not cost them
         profiles.save(tmp)
@@ -72,8 +81,7 @@ def cmd_profiles(args, console: _Console) -> int:
     if len(profiles) == 0:
         console.warn(f"no usable edge profiles in {path}: {profiles.reason}")
     wrote = ", ".join(str(p) for _, p in outputs)
-    console.info(f"{len(profiles)} edge profiles (max blur {max_blur:g} px, {seconds:.1f} s);"
-                 f" wrote {wrote}")
+    console.info(f"{len(profiles)} edge profiles ({used}, {seconds:.1f} s); wrote {wrote}")
     if len(profiles):
         console.info(f"median confidence {np.median(profiles.confidence):.2f}; "
                      + profiles.coverage_summary())
