@@ -140,6 +140,11 @@ class EstimateInfo:
     #: (Eq. 16; :meth:`~.profile_fit.RobustProfileFit.relative_misfit`); Xu+Ep: that of
     #: the EpAlone check on its profiles (:data:`XU_EP_GATE`)
     profile_misfit: float | None = None
+    #: Xu+Ep: the start of the estimate kept, "blob" (the small blob of
+    #: :func:`~.pyramid.initial_weights`) or "edge profiles" (the EpAlone estimate of its
+    #: gate, :data:`SECOND_START`), and the L0 costs of the two starts' estimates
+    start: str = "blob"
+    start_costs: tuple[float, float] | None = None
     #: what the blur-size measurement found when ``max_blur`` was not given, e.g. "blur
     #: about 40 px, from 85 edge profiles" (:class:`~.blur_size.BlurSize`); None if given
     blur_size: str | None = None
@@ -313,6 +318,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     step = 0
     yield Progress("estimate", step, total, "preparing", n_scales=len(scales))
     work_profiles = None
+    ep_start = None  # Xu+Ep: the EpAlone estimate of its gate, the second start
     if method != "xu":
         if profiles is None:
             from .edges import iter_extract_edge_profiles
@@ -352,7 +358,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                                       "ep", work_profiles, gain, lambda_w, 0.0, lambda_f,
                                       False, EstimateInfo("ep", model, max_blur,
                                                           intr_full.focal_px, work_scale))
-                _, _, step = yield from check.iterate(step, total)
+                gate_motion, _, step = yield from check.iterate(step, total)
                 info.profile_misfit = check.profile_misfit
                 if info.profile_misfit > EP_MAX_MISFIT:
                     warnings.warn(
@@ -363,6 +369,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                     method, lambda_ip, work_profiles = "xu", 0.0, None
                     info.method = "xu"
                     info.message = "ran as 'xu' (the edge profiles disagree); "
+                elif SECOND_START:
+                    ep_start = gate_motion
 
     # -- coarse to fine ------------------------------------------------------------
     run = _CoarseToFine(work, intr_work, model, blur_work, scales, level_iters, method,
@@ -391,6 +399,9 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 step, total, wide_start=True, lambda_f_factor=_RESTART_LAMBDA_F)
             if again.max_displacement() > extent:
                 motion, latent = again, again_latent
+        if ep_start is not None:
+            motion, latent, step, total = yield from _second_start(
+                run, ep_start, motion, latent, lambda_f, info, step, total)
         info.converged = True
         info.message += "completed all scales"
     except StopRequested:
@@ -479,9 +490,10 @@ class _CoarseToFine:
         self.profile_misfit: float | None = None
 
     def iterate(self, step: int, total: int, *, wide_start: bool = False,
-                lambda_f_factor: float = 1.0):
+                lambda_f_factor: float = 1.0, start: CameraMotion | None = None,
+                label: str | None = None):
         method, scales, work_shape = self.method, self.scales, self.work.shape
-        self.motion = None
+        self.motion = start
         for li, s in enumerate(scales):
             lshape = tuple(max(8, round(n * s)) for n in work_shape)
             level = Level(li, resize(self.work, lshape), self.intrinsics.rescaled(lshape),
@@ -501,7 +513,8 @@ class _CoarseToFine:
             lam_f = lambda_f_factor * self.lambda_f * s ** -_LAMBDA_F_SCALING
             level_iter = self.level_iters[li]
             for it in range(level_iter):
-                where = f"scale {li + 1}/{len(scales)}, iteration {it + 1}/{level_iter}"
+                where = (f"{label or f'scale {li + 1}/{len(scales)}'}, "
+                         f"iteration {it + 1}/{level_iter}")
                 at = {"scale": li + 1, "n_scales": len(scales), "iteration": it + 1}
                 if method != "ep":
                     # a record per splitting step: on a 1024 px copy an alternation
@@ -533,6 +546,52 @@ class _CoarseToFine:
 
 
 
+#: Xu+Ep runs its finest-scale alternation a second time, started from the EpAlone
+#: estimate of its gate (:data:`XU_EP_GATE`), and keeps whichever of the two estimates
+#: has the lower L0 cost (Eq. 21, :func:`iter_l0_cost`). The edge profiles alone often
+#: find the shape of the path where the alternation from a small blob falls into a
+#: wrong basin (on manmade photos), while their estimate is too thick to deblur with
+#: (the profiles measure only projections); the alternation from it thins it. See
+#: ``benchmarks/results/second-start.md``.
+SECOND_START = True
+
+
+def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion, latent,
+                  lambda_f: float, info: EstimateInfo, step: int, total: int):
+    """The finest-scale alternation of ``run`` again, from ``start``; the better of the two.
+
+    A generator of progress records returning ``(motion, latent, step, total)``. The
+    first estimate is kept if the second is stopped, collapses, or costs more.
+    """
+    level_iters = run.level_iters[-1]
+    total += level_iters
+    second = _CoarseToFine(run.work, run.intrinsics, run.model, run.blur_work,
+                           run.scales[-1:], [level_iters], run.method, run.profiles,
+                           run.gain, run.lambda_w, run.lambda_ip, run.lambda_f, run.preview,
+                           EstimateInfo(info.method, info.model, info.max_blur,
+                                        info.focal_px, info.working_scale))
+    label = "second start, from the edge profiles' estimate"
+    other, other_latent, step = yield from second.iterate(step, total, start=start,
+                                                          label=label)
+    if other.max_displacement() < COLLAPSE_EXTENT:
+        return motion, latent, step, total
+    record = Progress("estimate", step, total, f"{label}: comparing the two estimates",
+                      n_scales=len(run.scales))
+    # both on the same interior: that of the larger PSF
+    band = max(m.rescale(run.finest.shape).psf_size() for m in (motion, other)) // 2 + 2
+    first_cost = yield from relay_as(iter_l0_cost(run.finest, motion, lambda_f, band), record)
+    second_cost = yield from relay_as(iter_l0_cost(run.finest, other, lambda_f, band), record)
+    if not (math.isfinite(first_cost) and math.isfinite(second_cost)):
+        return motion, latent, step, total
+    info.start_costs = (first_cost, second_cost)
+    if second_cost < first_cost:
+        info.start = "edge profiles"
+        info.message += (f"the start from the edge profiles' estimate won (L0 cost "
+                         f"{second_cost:.4g} vs {first_cost:.4g}); ")
+        return other, other_latent, step, total
+    return motion, latent, step, total
+
+
 #: Xu+Ep uses the automatic profiles whose calibrated confidence is at least this
 #: (:attr:`EdgeProfiles.confidence`), when enough of them remain: its edge-profile term
 #: pulls the whole alternation, and a false profile pulls it the wrong way.
@@ -551,40 +610,49 @@ def blind_costs(level: Level, motion: CameraMotion, lambda_f: float) -> tuple[fl
     return drive(iter_blind_costs(level, motion, lambda_f))
 
 
-def iter_blind_costs(level: Level, motion: CameraMotion, lambda_f: float):
-    """The L0 blind-deblurring cost (Eq. 21) of ``motion`` and of the identity, per pixel.
+def iter_l0_cost(level: Level, motion: CameraMotion, lambda_f: float, band: int | None = None):
+    """The L0 blind-deblurring cost (Eq. 21) of ``motion`` on ``level``, per pixel.
 
     ``E(k) = ||T_k f_k - g||^2 / N + lambda_f ||grad f_k||_0 / N`` with ``f_k`` the L0
-    latent for motion ``k`` (:func:`~.latent.l0_latent`), on the interior of the level
-    (a band of half the PSF size left out). A motion found on a blurred photo costs about
-    as much as the identity -- the L0 objective barely prefers the true blur to none,
-    which is why the alternation can collapse -- but on a sharp photo a blur costs
-    several times more: the test of :data:`_NO_BLUR_RATIO`.
-
-    Returns
-    -------
-    (cost of ``motion``, cost of the identity)
-        Both NaN when the level has no interior left to compare on (an image not much
-        larger than its blur).
+    latent for motion ``k`` (:func:`~.latent.l0_latent`), on the interior of the level:
+    a band of ``band`` px (default half the PSF size of ``motion``, plus 2) left out.
+    A generator of progress records (the latent's); returns NaN when the level has no
+    interior left to compare on (an image not much larger than its blur).
     """
     from .operators import blur
 
     g = level.blurred
-    band = motion.rescale(level.shape).psf_size() // 2 + 2
+    k = motion.rescale(level.shape)
+    band = k.psf_size() // 2 + 2 if band is None else band
     if min(g.shape) - 2 * band < _MIN_INTERIOR:
-        return float("nan"), float("nan")
+        return float("nan")
     inner = (slice(band, -band), slice(band, -band))
+    f, (gx, gy) = yield from iter_l0_latent(g, k, lambda_f, return_gradients=True, fine=True)
+    residual = blur(f, k)[inner] - g[inner]
+    nonzero = (gx[inner] ** 2 + gy[inner] ** 2) > 0
+    return float(np.mean(residual.astype(np.float64) ** 2) + lambda_f * np.mean(nonzero))
 
-    def cost(k: CameraMotion):
-        f, (gx, gy) = yield from iter_l0_latent(g, k, lambda_f, return_gradients=True,
-                                                fine=True)
-        residual = blur(f, k)[inner] - g[inner]
-        nonzero = (gx[inner] ** 2 + gy[inner] ** 2) > 0
-        return float(np.mean(residual.astype(np.float64) ** 2) + lambda_f * np.mean(nonzero))
 
+def iter_blind_costs(level: Level, motion: CameraMotion, lambda_f: float):
+    """The L0 cost (:func:`iter_l0_cost`) of ``motion`` and of the identity, per pixel.
+
+    A motion found on a blurred photo costs about as much as the identity -- the L0
+    objective barely prefers the true blur to none, which is why the alternation can
+    collapse -- but on a sharp photo a blur costs several times more: the test of
+    :data:`_NO_BLUR_RATIO`. Both costs are taken on the same interior (that of
+    ``motion``).
+
+    Returns
+    -------
+    (cost of ``motion``, cost of the identity)
+        Both NaN when the level has no interior left to compare on.
+    """
+    band = motion.rescale(level.shape).psf_size() // 2 + 2
+    first = yield from iter_l0_cost(level, motion, lambda_f, band)
+    if not math.isfinite(first):
+        return float("nan"), float("nan")
     identity = CameraMotion.identity(motion.model, level.intrinsics)
-    first = yield from cost(motion.rescale(level.shape))
-    second = yield from cost(identity)
+    second = yield from iter_l0_cost(level, identity, lambda_f, band)
     return first, second
 
 
