@@ -58,7 +58,7 @@ from qtpy.QtWidgets import (
 from superqt import QCollapsible
 
 from ..core._validation import as_rng, first_line
-from ..core.blur_size import BlurSize, max_blur_for, measure_blur_extent
+from ..core.blur_size import BlurSize, resolve_max_blur
 from ..core.edges import EdgeProfiles, extract_edge_profiles, profile_along_line
 from ..core.estimate import default_max_blur
 from ..core.photometry import Gamma, parse_gamma
@@ -130,13 +130,11 @@ def iter_detect(image: np.ndarray, max_blur: float | None = None, rng=0,
     size, step, steps = None, 0, 1
     if max_blur is None:
         shape = work.shape[:2]
-        max_blur = default_max_blur(shape)
-        if max_blur <= min(shape) / 2:
+        if default_max_blur(shape) <= min(shape) / 2:  # else too small: no measuring
             step, steps = 1, 2
             yield Progress("profiles", 0, steps,
                            "measuring the blur size from the edge profiles")
-            size = measure_blur_extent(work, rng=rng.spawn(1)[0])
-            max_blur = max_blur_for(size, shape)
+        max_blur, size = resolve_max_blur(work, None, rng=rng)
     yield Progress("profiles", step, steps, "detecting edge profiles")
     profiles = extract_edge_profiles(work, max_blur, rng=rng)
     yield Progress("profiles", steps, steps, f"{len(profiles)} edge profiles")

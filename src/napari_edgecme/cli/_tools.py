@@ -42,7 +42,7 @@ def _figure_formats() -> set[str]:
 
 def cmd_profiles(args, console: _Console) -> int:
     from ..core._validation import as_rng
-    from ..core.blur_size import max_blur_for, measure_blur_extent
+    from ..core.blur_size import resolve_max_blur
     from ..core.edges import extract_edge_profiles
 
     path = _existing_input(args.image, "image")
@@ -60,12 +60,10 @@ def cmd_profiles(args, console: _Console) -> int:
     max_blur = _max_blur(args.max_blur, image.shape, measure=True)
     t0 = time.perf_counter()
     rng = as_rng(args.seed)
-    if max_blur is None:  # measured as deblur's estimator does (its stream of the seed)
-        size = measure_blur_extent(image, rng=rng.spawn(1)[0])
-        max_blur = max_blur_for(size, image.shape)
-        used = f"max blur {max_blur:.0f} px (measured: {size.message})"
-    else:
-        used = f"max blur {max_blur:g} px"
+    # measured as deblur's estimator does (its stream of the seed)
+    max_blur, size = resolve_max_blur(image, max_blur, rng=rng)
+    used = (f"max blur {max_blur:g} px" if size is None
+            else f"max blur {max_blur:.0f} px (measured: {size.message})")
     profiles = extract_edge_profiles(image, max_blur, rng=rng)
     seconds = time.perf_counter() - t0
     with _writing(args.output) as (tmp,):  # the profiles first: a plot must not cost them

@@ -58,7 +58,7 @@ from ._validation import as_rng
 from .photometry import to_luminance
 
 __all__ = ["EDGE_FACTOR", "EDGE_QUANTILE", "MARGIN", "MIN_PROFILES", "BlurSize",
-           "max_blur_for", "measure_blur_extent", "transition_widths"]
+           "max_blur_for", "measure_blur_extent", "resolve_max_blur", "transition_widths"]
 
 #: Fewest edge profiles the edge measurement is made from (see the module notes).
 MIN_PROFILES = 8
@@ -181,6 +181,44 @@ def max_blur_for(size: BlurSize, shape) -> float:
     value = size.extent_px if size.source == "default" else MARGIN * size.extent_px
     upper = min(rows, cols) / 2.0 - 0.5
     return float(max(1.0, min(value, upper)))
+
+
+def resolve_max_blur(image, max_blur: float | None, *, rng,
+                     max_side: int | None = None) -> tuple[float, BlurSize | None]:
+    """The ``max_blur`` to search with: the one given, or measured from ``image``.
+
+    The one rule of every face (estimator, CLI, widgets) for a max blur left to "auto".
+    An image too small for the default max blur (4 % of its longer side at least half
+    its smaller side) gets that default unmeasured, for the caller's size check to
+    refuse in its own words.
+
+    Parameters
+    ----------
+    image : array_like of shape (M, N) or (M, N, 3)
+        The blurred photo, in the light the estimator sees.
+    max_blur : float or None
+        The user's value (returned as it is) or None (measure).
+    rng : numpy.random.Generator
+        The caller's generator: the measurement draws from a stream spawned from it
+        (``rng.spawn(1)[0]``), so the caller's own stream is the same either way.
+    max_side : int, optional
+        As in :func:`measure_blur_extent`.
+
+    Returns
+    -------
+    (max_blur, size)
+        ``size`` is the :class:`BlurSize` measured, or None when nothing was.
+    """
+    from .estimate import default_max_blur
+
+    if max_blur is not None:
+        return float(max_blur), None
+    shape = np.shape(image)[:2]
+    default = default_max_blur(shape)
+    if default > min(shape) / 2:
+        return default, None
+    size = measure_blur_extent(image, rng=rng.spawn(1)[0], max_side=max_side)
+    return max_blur_for(size, shape), size
 
 
 # ---------------------------------------------------------------------------------------

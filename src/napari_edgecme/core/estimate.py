@@ -21,7 +21,10 @@ pyramid with ratio ``1/sqrt(2)``):
   (Eq. 19) to 0.601, and the estimate takes 3 s instead of 23 s;
 * **Xu** alternates the L0-gradient latent update (Eq. 21) and the gradient-domain
   MDF update; **Xu+Ep** adds ``lambda_Ip`` times the edge-profile term (Eq. 22).
-  ``lambda_Ip = 0`` is exactly Xu.
+  ``lambda_Ip = 0`` is exactly Xu. Xu+Ep first runs EpAlone on its profiles (the gate,
+  :data:`XU_EP_GATE`): profiles that disagree on one motion are dropped for Xu; profiles
+  that agree give a second start of the finest-scale alternation (:data:`SECOND_START`),
+  and the estimate of lower L0 cost (Eq. 21) of the two starts is kept.
 
 A photo larger than ``max_side`` is estimated on a downscaled copy; Xu and Xu+Ep then
 carry the alternation on, at 2x steps, up to the photo's own resolution on a few crops
@@ -278,11 +281,10 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     rng = as_rng(rng)
     blur_size = None
     if max_blur is None:  # measure it (a few seconds), on its own stream of random numbers
-        from .blur_size import max_blur_for, measure_blur_extent
+        from .blur_size import resolve_max_blur
 
         yield Progress("estimate", 0, 1, "measuring the blur size from the edge profiles")
-        blur_size = measure_blur_extent(img, rng=rng.spawn(1)[0], max_side=max_side)
-        max_blur = max_blur_for(blur_size, shape)
+        max_blur, blur_size = resolve_max_blur(img, None, rng=rng, max_side=max_side)
     if method == "xu":
         lambda_ip = 0.0
     t_start = time.perf_counter()
