@@ -70,13 +70,18 @@ def main(argv=None) -> int:
             for i in range(args.repeat):
                 for name, tree in trees.items():
                     res = run_in(tree, job, args.timeout)
-                    if not res.get("ok"):
-                        print(f"error: {method} ({name}): {res.get('error')}", file=sys.stderr)
-                        return 1
+                    if not res.get("ok"):  # e.g. EpAlone refusing: no time to compare
+                        print(f"{method} ({name}) failed: {res.get('error')}", file=sys.stderr)
+                        break
                     runs[name].append(res)
                     print(f"{method} {name} run {i + 1}: {res['estimate_s']:.1f} s wall, "
                           f"{res['estimate_cpu_s']:.1f} s CPU, {res['peak_rss_mib']:.0f} MiB",
                           file=sys.stderr, flush=True)
+                if not all(len(rs) == i + 1 for rs in runs.values()):
+                    break
+            if not all(runs.values()):
+                rows.append((method, None, None))
+                continue
             med = {name: {key: statistics.median(r[key] for r in rs)
                           for key in ("estimate_s", "estimate_cpu_s")}
                    for name, rs in runs.items()}
@@ -90,6 +95,9 @@ def main(argv=None) -> int:
              "CPU after (s) | ratio | peak before (MiB) | peak after (MiB) |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for method, med, peak in rows:
+        if med is None:
+            lines.append(f"| {method} | failed (see the log) | | | | | | | |")
+            continue
         b, a = med["before"], med["after"]
         lines.append(f"| {method} | {b['estimate_s']:.1f} | {a['estimate_s']:.1f} | "
                      f"{a['estimate_s'] / b['estimate_s']:.2f} | {b['estimate_cpu_s']:.1f} | "

@@ -780,3 +780,19 @@ def test_bench_data_applies_to_the_suites_only(cd, capsys):
     assert status == 2 and len(err) == 1 and "--data applies to the lai, levin and real" in err[0]
     status, _, err = run(["bench", "--suite", "lai", "--data", "missing-folder"], capsys)
     assert status == 2 and len(err) == 1 and "no data for suite 'lai'" in err[0]
+
+
+def test_the_summary_says_when_xu_ep_kept_the_start_from_the_profiles():
+    from napari_edgecme.cli._deblur import estimate_summary
+    from napari_edgecme.core.camera import Intrinsics
+    from napari_edgecme.core.estimate import EstimateInfo, MotionEstimate
+    from napari_edgecme.core.motion import CameraMotion
+
+    motion = CameraMotion.identity("inplane", Intrinsics.from_image_shape((64, 64)))
+    info = EstimateInfo("xu+ep", "inplane", 9.0, 77.0, 1.0, converged=True)
+    plain = estimate_summary(MotionEstimate(motion, None, None, info), "xu+ep", 9.0, "default")
+    info.start = "edge profiles"
+    kept = estimate_summary(MotionEstimate(motion, None, None, info), "xu+ep", 9.0, "default")
+    assert "start" not in plain
+    assert kept == plain.replace(", 0.0 s)", ", kept the start from the profiles' estimate, "
+                                               "0.0 s)")

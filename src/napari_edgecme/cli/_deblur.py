@@ -96,6 +96,8 @@ def estimate_summary(result, requested: str, max_blur: float, focal_source: str)
             text += (f" in {cov['orientation_bins']}/8 orientations"
                      + (f" and {cov['cells']}/9 image cells" if cov["cells"] is not None
                         else ""))
+    if getattr(info, "start", "blob") == "edge profiles":
+        text += ", kept the start from the profiles' estimate"
     text += f", {info.seconds:.1f} s)"
     if not info.converged:
         text += f"; {info.message}"
