@@ -58,7 +58,7 @@ def main(argv=None) -> int:
         if not (Path(tree) / "napari_edgecme").is_dir():
             print(f"error: --{name} {tree} holds no napari_edgecme package", file=sys.stderr)
             return 2
-    load_start = load_average()
+    machine = machine_info()
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         paths = speed_inputs(make_config(quick=True, large=False, speed_size=800), Path(tmp))
@@ -80,24 +80,26 @@ def main(argv=None) -> int:
                 if not all(len(rs) == i + 1 for rs in runs.values()):
                     break
             if not all(runs.values()):
-                rows.append((method, None, None))
+                rows.append((method, None, None, None))
                 continue
             med = {name: {key: statistics.median(r[key] for r in rs)
                           for key in ("estimate_s", "estimate_cpu_s")}
                    for name, rs in runs.items()}
             peak = {name: max(r["peak_rss_mib"] for r in rs) for name, rs in runs.items()}
-            rows.append((method, med, peak))
+            ran = {name: rs[0].get("method_run", method) for name, rs in runs.items()}
+            rows.append((method, med, peak, ran))
+    machine["load_average_end"] = load_average()
     lines = [f"# Estimation before / after, 800x800 gray, {SPEED_BLUR:g} px rotation shake",
-             "", f"{machine_line(machine_info())}; load average {load_start:.1f} at the start, "
-             f"{load_average():.1f} at the end; {(time.perf_counter() - t_start) / 60:.1f} min; "
+             "", f"{machine_line(machine)}; {(time.perf_counter() - t_start) / 60:.1f} min; "
              f"medians of {args.repeat} fresh-process runs per tree, interleaved.", "",
-             "| method | wall before (s) | wall after (s) | ratio | CPU before (s) | "
-             "CPU after (s) | ratio | peak before (MiB) | peak after (MiB) |",
+             "| method (ran as: before / after) | wall before (s) | wall after (s) | ratio | "
+             "CPU before (s) | CPU after (s) | ratio | peak before (MiB) | peak after (MiB) |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for method, med, peak in rows:
+    for method, med, peak, ran in rows:
         if med is None:
             lines.append(f"| {method} | failed (see the log) | | | | | | | |")
             continue
+        method = f"{method} ({ran['before']} / {ran['after']})"
         b, a = med["before"], med["after"]
         lines.append(f"| {method} | {b['estimate_s']:.1f} | {a['estimate_s']:.1f} | "
                      f"{a['estimate_s'] / b['estimate_s']:.2f} | {b['estimate_cpu_s']:.1f} | "
