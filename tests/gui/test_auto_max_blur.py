@@ -18,7 +18,6 @@ import pytest
 from PIL import Image as PILImage
 from PIL.PngImagePlugin import PngInfo
 
-from napari_edgecme._widgets import edge_profiles as edge_profiles_module
 from napari_edgecme._widgets.camera_motion import CameraMotionWidget
 from napari_edgecme._widgets.edge_profiles import (
     ORIGIN_KEY,
@@ -52,7 +51,8 @@ def shaken():
 
 @pytest.fixture
 def threads(monkeypatch):
-    """The threads ``measure_blur_extent`` ran in, in both places the widgets reach it."""
+    """The threads ``measure_blur_extent`` ran in (the engine and the Edge profiles widget
+    both reach it through ``blur_size.resolve_max_blur``)."""
     seen = []
     real = blur_size.measure_blur_extent
 
@@ -60,8 +60,7 @@ def threads(monkeypatch):
         seen.append(threading.current_thread())
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(blur_size, "measure_blur_extent", measuring)  # the engine's
-    monkeypatch.setattr(edge_profiles_module, "measure_blur_extent", measuring)
+    monkeypatch.setattr(blur_size, "measure_blur_extent", measuring)
     return seen
 
 
