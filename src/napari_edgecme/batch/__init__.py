@@ -88,8 +88,9 @@ def deblur_many(paths, out_dir, method: str = "xu+ep", model: str = "rotation",
         Output folder, created if missing.
     method, model, max_blur, focal_px
         As :func:`~napari_edgecme.core.deblur.deblur`, for every photo (``max_blur``:
-        default 4% of each photo's longer side; ``focal_px``: default each photo's EXIF,
-        else the 35 mm-equivalent default).
+        default measured from each photo, as
+        :func:`~napari_edgecme.core.blur_size.resolve_max_blur` does; ``focal_px``:
+        default each photo's EXIF, else the 35 mm-equivalent default).
     deconvolution : {"hyperlaplacian", "rl", "wiener"}
     deconv_params : dict, optional
         ``lambda_f``, ``iterations`` or ``nsr`` of the deconvolution (``lam``, deprecated:
