@@ -258,6 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also plot the profiles and their derivatives (needs matplotlib)")
     p.add_argument("--seed", type=_number(int, allow_zero=True), default=0, metavar="N",
                    help="seed of the candidate subsampling on large images (default 0)")
+    _add_gamma(p)  # profiles are measured in linear light, as 'deblur' measures them
 
     p = command("psf", cmd_psf, "draw the PSF field of a motion file",
                 "Draw the local PSFs of a camera motion on a grid over its image. A .png "

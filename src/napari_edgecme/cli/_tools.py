@@ -44,6 +44,7 @@ def cmd_profiles(args, console: _Console) -> int:
     from ..core._validation import as_rng
     from ..core.blur_size import resolve_max_blur
     from ..core.edges import extract_edge_profiles
+    from ._deblur import gamma_note, gamma_setting, linear_input
 
     path = _existing_input(args.image, "image")
     outputs = [("-o", _check_output(args.output, "-o"))]
@@ -56,7 +57,8 @@ def cmd_profiles(args, console: _Console) -> int:
                            f"{suffix}; use one of " + ", ".join(sorted(formats)))
         outputs.append(("--plot", args.plot))
     _distinct([("IMAGE", path)], outputs)
-    image = read_input_image(path, console)
+    gamma_setting(args)  # a bad --gamma is a usage error before any work
+    image, curve, reason = linear_input(args, read_input_image(path, console), path)
     max_blur = _max_blur(args.max_blur, image.shape, measure=True)
     t0 = time.perf_counter()
     rng = as_rng(args.seed)
@@ -79,7 +81,8 @@ def cmd_profiles(args, console: _Console) -> int:
     if len(profiles) == 0:
         console.warn(f"no usable edge profiles in {path}: {profiles.reason}")
     wrote = ", ".join(str(p) for _, p in outputs)
-    console.info(f"{len(profiles)} edge profiles ({used}, {seconds:.1f} s); wrote {wrote}")
+    console.info(f"{len(profiles)} edge profiles ({used}, {seconds:.1f} s; "
+                 f"{gamma_note(curve, reason)}); wrote {wrote}")
     if len(profiles):
         console.info(f"median confidence {np.median(profiles.confidence):.2f}; "
                      + profiles.coverage_summary())
