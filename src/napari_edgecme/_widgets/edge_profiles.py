@@ -141,6 +141,16 @@ def iter_detect(image: np.ndarray, max_blur: float | None = None, rng=0,
     return Detected(profiles, float(max_blur), size)
 
 
+def _measured(pixels, start, end, max_blur: float):
+    """The profile of a hand-drawn line (:func:`profile_along_line`), or None and the
+    one-line reason it was refused."""
+    try:
+        one = profile_along_line(pixels, start, end, max_blur=max_blur)
+    except ValueError as err:
+        return None, first_line(err)
+    return (one, None) if len(one) else (None, one.reason)
+
+
 @dataclass
 class _ProfileLayers:
     """The layers that show one profile set."""
@@ -416,15 +426,11 @@ class EdgeProfilesWidget(QWidget):
         pixels = _linear_pixels(image, curve)
         kept, refused = [], []
         for start, end in profile_lines(hand):
-            try:
-                one = profile_along_line(pixels, start, end, max_blur=hand.max_blur)
-            except ValueError as err:
-                refused.append(first_line(err))
-                continue
-            if len(one):
+            one, why = _measured(pixels, start, end, hand.max_blur)
+            if one is not None:
                 kept.append(one)
             else:
-                refused.append(one.reason)
+                refused.append(why)
         if not kept:
             return EdgeProfiles.empty("none"), refused
         return EdgeProfiles.concatenate(kept), refused
@@ -575,15 +581,11 @@ class EdgeProfilesWidget(QWidget):
                 if kind != "line" or len(data) != 2:
                     refused.append(f"a {kind} is not a line; draw lines across edges")
                     continue
-                try:
-                    one = profile_along_line(image, data[0], data[1], max_blur=max_blur)
-                except ValueError as err:
-                    refused.append(first_line(err))
-                    continue
-                if len(one):
+                one, why = _measured(image, data[0], data[1], max_blur)
+                if one is not None:
                     accepted.append(one)
                 else:
-                    refused.append(one.reason)
+                    refused.append(why)
         parts = [old.subset(kept), *accepted]
         profiles = EdgeProfiles.concatenate(parts)
         if len(profiles) == 0 and not profiles.reason:
