@@ -14,10 +14,7 @@ the after/before ratios, and writes it to ``--out`` if given.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -26,20 +23,7 @@ from pathlib import Path
 from napari_edgecme._bench._config import SPEED_BLUR, make_config
 from napari_edgecme._bench._speed import speed_inputs
 from napari_edgecme._report import load_average, machine_info, machine_line
-from napari_edgecme._worker import MARKER
-
-
-def run_in(tree: str, job: dict, timeout: float) -> dict:
-    """Run a worker job with the package imported from ``tree``."""
-    env = {**os.environ, "PYTHONPATH": tree}
-    proc = subprocess.run([sys.executable, "-m", "napari_edgecme._worker"],
-                          input=json.dumps(job), capture_output=True, text=True,
-                          timeout=timeout, env=env, check=False)
-    for line in reversed(proc.stdout.splitlines()):
-        if line.startswith(MARKER):
-            return json.loads(line[len(MARKER):])
-    tail = [ln for ln in proc.stderr.splitlines() if ln.strip()]
-    return {"ok": False, "error": tail[-1] if tail else f"exit status {proc.returncode}"}
+from napari_edgecme._worker import run_job
 
 
 def main(argv=None) -> int:
@@ -69,7 +53,7 @@ def main(argv=None) -> int:
             runs = {name: [] for name in trees}
             for i in range(args.repeat):
                 for name, tree in trees.items():
-                    res = run_in(tree, job, args.timeout)
+                    res = run_job(job, args.timeout, source=tree)
                     if not res.get("ok"):  # e.g. EpAlone refusing: no time to compare
                         print(f"{method} ({name}) failed: {res.get('error')}", file=sys.stderr)
                         break

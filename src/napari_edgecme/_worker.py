@@ -140,19 +140,21 @@ def worker_main() -> None:
     print(MARKER + json.dumps(result), flush=True)
 
 
-def worker_env() -> dict:
+def worker_env(source: str | None = None) -> dict:
     """The environment of a worker process: this one's, with this package first on the path
-    (a worker runs the same code as its parent, whatever is installed)."""
+    (a worker runs the same code as its parent, whatever is installed), or the source tree
+    ``source`` (a folder holding ``napari_edgecme``: another version, for comparisons)."""
     env = os.environ.copy()
-    package_root = str(Path(__file__).resolve().parents[1])
+    package_root = source or str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"]
                                         if env.get("PYTHONPATH") else "")
     return env
 
 
-def run_job(job: dict, timeout: float) -> dict:
-    """Run ``job`` in a fresh Python process; a failure comes back as ``{"ok": False, ...}``."""
-    env = worker_env()
+def run_job(job: dict, timeout: float, source: str | None = None) -> dict:
+    """Run ``job`` in a fresh Python process (importing this package, or the one in the
+    source tree ``source``); a failure comes back as ``{"ok": False, ...}``."""
+    env = worker_env(source)
     t0 = time.perf_counter()
     try:
         proc = subprocess.run([sys.executable, "-m", "napari_edgecme._worker"],
