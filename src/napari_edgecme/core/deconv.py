@@ -75,14 +75,29 @@ average 1.4 dB below it, against 4.5 dB with the reference's replicate padding.
 
 Large images
 ------------
-The image is processed in blocks of ``block_size`` pixels (default 2048) that
-overlap and cross-fade (windows summing to one); each block is solved on its own
-latent domain with a margin of real data of twice the PSF size plus 8 px around the
-part that is kept, so a cut between blocks is handled like the image border and lies
-far from the kept pixels (block and whole-image results agree to ~40 dB, with no
-seam). Memory is bounded by one block besides the input and the result, which is
-written in place in its final (H, W, C) layout and clipped there (no full-size copy
-at the end; ``benchmarks/results/large-24mp.md`` for 12 and 24 MP). A progress
+The image is processed in blocks of ``block_size`` pixels that overlap and
+cross-fade (windows summing to one); each block is solved on its own latent domain
+with a margin of real data of twice the PSF size plus 8 px around the part that is
+kept, so a cut between blocks is handled like the image border and lies far from the
+kept pixels (block and whole-image results agree to ~40 dB, with no seam). Memory is
+bounded by one block besides the input and the result, which is written in place in
+its final (H, W, C) layout and clipped there (no full-size copy at the end;
+``benchmarks/results/large-24mp.md`` for 12 and 24 MP).
+
+A block's working memory grows with its latent domain times what each pixel costs:
+the tiles' spectra, ``(F / stride)^2`` per pixel for the EFF's FFT size ``F`` and
+``(B / stride)^2`` for the Fourier boxes ``B`` (a tile's window plus a PSF side each
+way), so it rises steeply with the PSF side ``K`` when the tiles are small. It is
+modelled from what the operator and solvers allocate
+(:func:`~napari_edgecme.core.deconv_blocks.block_memory`; 1-15 % above the
+allocations measured for the default solver, ``benchmarks/results/deconv-memory.md``),
+and by default (``block_size=None``) the block size is the largest up to 2048 whose
+every block fits
+:data:`~napari_edgecme.core.deconv_blocks.BLOCK_MEMORY_BUDGET`, 2 GiB
+(:func:`~napari_edgecme.core.deconv_blocks.auto_block_size`); it is never chosen
+below the block's margin ``2 K + 8``, where the margins would be most of the work and
+a smaller block would save little memory: a PSF of about 200 px on small, fast-turning
+tiles (56 px at 24 MP) then exceeds the budget. An ``int`` is used as given. A progress
 record comes before each block's blur operator is built, after each chunk of tiles
 (tile spectra, the observation's spectra, each image step), after each slab of about
 a million pixels of the w-step, and after each half-quadratic step -- a few tenths
@@ -113,7 +128,15 @@ from collections.abc import Callable, Generator
 import numpy as np
 
 from ._validation import as_float_image, check_bool, check_choice, check_positive
-from .deconv_blocks import MIN_BLOCK, BlockPlan, auto_stride, psf_extent
+from .deconv_blocks import (
+    MIN_BLOCK,
+    BlockPlan,
+    auto_block_size,
+    auto_stride,
+    fourier_margin,
+    latent_pad,
+    psf_extent,
+)
 from .deconv_prior import check_alpha
 from .deconv_solvers import (
     LatentDomain,
@@ -156,9 +179,8 @@ class _NotGiven:
 
 NOT_GIVEN = _NotGiven()
 
-#: Patch-wise Fourier solver: box margin beyond each EFF window, in PSF sizes, and
-#: conjugate-gradient iterations on the border tiles' masked problems per image step.
-FOURIER_MARGIN = 1.0
+#: Patch-wise Fourier solver: conjugate-gradient iterations on the border tiles' masked
+#: problems per image step (its box margin: ``deconv_blocks.FOURIER_MARGIN``).
 FOURIER_BORDER_ITERATIONS = {"hyperlaplacian": 8, "wiener": 12}
 
 
@@ -167,7 +189,7 @@ def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
                beta_start: float = 1.0, beta_rate: float = 2.0 * math.sqrt(2.0),
                beta_max: float = 256.0, inner_iterations: int = 1, solver: str = "fourier",
                cg_iterations: int = 10, cg_tol: float = 1e-4, iterations: int = 30,
-               nsr: float = 1e-2, block_size: int = 2048, stride: int | None = None,
+               nsr: float = 1e-2, block_size: int | None = None, stride: int | None = None,
                preview: bool = False, lam: float = NOT_GIVEN,
                callback: Callable[[Progress], object] | None = None) -> np.ndarray:
     """Restore a blurred photo with a known (spatially varying) camera motion.
@@ -213,8 +235,17 @@ def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
     nsr : float, default 0.01
         wiener: noise-to-signal ratio relative to a ``|omega|^-2`` image spectrum
         (best on average at 1 % noise).
-    block_size : int, default 2048
-        all methods: side of the blocks a large image is cut into (>= 64).
+    block_size : int or None, default None
+        all methods: side of the blocks a large image is cut into (>= 64), each solved
+        with a margin of ``2 K + 8`` px of real data around it (``K`` the PSF side).
+        None chooses it from the memory budget
+        (:func:`~napari_edgecme.core.deconv_blocks.auto_block_size`): the largest size
+        up to 2048 whose blocks each need at most
+        :data:`~napari_edgecme.core.deconv_blocks.BLOCK_MEMORY_BUDGET` (2 GiB) of
+        working memory by the memory model, but not below the margin (module notes,
+        *Large images*). 2048 was the fixed default, and is still the choice unless
+        the blur is large (at 24 MP RGB: a 151 px PSF on 78 px tiles gets 1472 px
+        blocks, an 85 px one 2048).
     stride : int or None, default None
         all methods: EFF tile size in pixels (>= 8); None adapts it to how fast the
         PSF changes across the image (module notes).
@@ -265,7 +296,7 @@ def iter_deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian",
                     beta_start: float = 1.0, beta_rate: float = 2.0 * math.sqrt(2.0),
                     beta_max: float = 256.0, inner_iterations: int = 1,
                     solver: str = "fourier", cg_iterations: int = 10, cg_tol: float = 1e-4,
-                    iterations: int = 30, nsr: float = 1e-2, block_size: int = 2048,
+                    iterations: int = 30, nsr: float = 1e-2, block_size: int | None = None,
                     stride: int | None = None, preview: bool = False,
                     lam: float = NOT_GIVEN) -> Generator[Progress, None, np.ndarray]:
     """:func:`deconvolve` as a generator: yields progress records, returns the image.
@@ -410,9 +441,10 @@ def check_deconvolution_parameters(method: str, params: dict) -> dict:
         opts["iterations"] = check_positive(opts["iterations"], "iterations", integer=True)
     else:
         opts["nsr"] = check_positive(opts["nsr"], "nsr")
-    opts["block_size"] = check_positive(opts["block_size"], "block_size", integer=True)
-    if opts["block_size"] < MIN_BLOCK:
-        raise ValueError(f"block_size must be >= {MIN_BLOCK}; got {opts['block_size']!r}")
+    if opts["block_size"] is not None:
+        opts["block_size"] = check_positive(opts["block_size"], "block_size", integer=True)
+        if opts["block_size"] < MIN_BLOCK:
+            raise ValueError(f"block_size must be >= {MIN_BLOCK}; got {opts['block_size']!r}")
     if opts["stride"] is not None:
         opts["stride"] = check_positive(opts["stride"], "stride", integer=True)
         if opts["stride"] < 8:
@@ -475,12 +507,18 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
     channels = [img] if img.ndim == 2 else [img[..., c] for c in range(img.shape[2])]
     nc = len(channels)
     K = psf_extent(motion)
-    pad = (K - 1) // 2 + 2  # latent pixels beyond the observed box: the PSF reach + slack
-    plan = BlockPlan((H, W), opts["block_size"], K)
-    nb = len(plan)
+    pad = latent_pad(K)  # latent pixels beyond the observed box: the PSF reach + slack
     stride = opts["stride"] if opts["stride"] is not None else auto_stride(motion)
     use_fourier = method == "wiener" or (method == "hyperlaplacian"
                                          and opts["solver"] == "fourier")
+    block_size = opts["block_size"]
+    chosen = ""  # how the block size was chosen, for the first record
+    if block_size is None:
+        block_size = auto_block_size((H, W), motion, stride, method=method,
+                                     solver=opts.get("solver", "fourier"), dtype=dtype)
+        chosen = f" (blocks of {block_size} px, from the memory budget)"
+    plan = BlockPlan((H, W), block_size, K)
+    nb = len(plan)
     per, start = _block_solver(method, opts)
     total = nb * nc * per
     # the result in its returned layout, (H, W, C) or (H, W): no copy at the end
@@ -528,13 +566,15 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict):
     try:
         for b, blk in enumerate(plan.blocks):
             where_b = f"block {b + 1}/{nb}, " if nb > 1 else ""
-            yield Progress("deconvolve", step, total, f"{where_b}building the blur operator")
+            said = chosen if b == 0 and nb > 1 else ""
+            yield Progress("deconvolve", step, total,
+                           f"{where_b}building the blur operator{said}")
             domain = LatentDomain(motion, blk["box"], pad, stride, dtype)
             inner = domain.inner
             yield Progress("deconvolve", step, total, f"{where_b}blur operator ready")
             fourier = None
             if use_fourier:
-                fourier = PatchFourier(domain, margin=max(8, round(FOURIER_MARGIN * K)),
+                fourier = PatchFourier(domain, margin=fourier_margin(K),
                                        build=False)
                 yield from relay(fourier.iter_build(), lambda r, at=step, where=where_b: Progress(
                     "deconvolve", at, total, where + r.message))

@@ -301,19 +301,17 @@ class PatchFourier:
         """Boxes of whole rows of tiles, copied into (n, B0, B1)."""
         return np.ascontiguousarray(view[tile_rows]).reshape(-1, *self.box)
 
-    def _blend(self, boxes_iter) -> np.ndarray:
-        """``sum_r omega_r C_r^T f_r`` from (tile indices, box solutions) chunks."""
-        canvas = np.zeros(self.canvas, self.dtype)
+    def _blend(self, canvas: np.ndarray, idx, boxes: np.ndarray) -> None:
+        """``canvas += sum_r omega_r C_r^T f_r`` over tiles ``idx`` and their box
+        solutions ``boxes`` (n, B0, B1), in place on the extended canvas: a chunk of
+        tiles at a time, so no more than a chunk's boxes are ever held."""
         m0, m1 = self.margin
         P0, P1 = self.patch
         nx = self.counts[1]
-        for idx, boxes in boxes_iter:
-            for r, b in zip(idx, boxes, strict=True):
-                i, j = divmod(int(r), nx)
-                r0, c0 = i * self.stride[0] + m0, j * self.stride[1] + m1
-                canvas[r0:r0 + P0, c0:c0 + P1] += b[m0:m0 + P0, m1:m1 + P1] * self.windows[r]
-        l0, l1 = self.lead
-        return canvas[l0:l0 + self.domain.shape[0], l1:l1 + self.domain.shape[1]]
+        for r, b in zip(idx, boxes, strict=True):
+            i, j = divmod(int(r), nx)
+            r0, c0 = i * self.stride[0] + m0, j * self.stride[1] + m1
+            canvas[r0:r0 + P0, c0:c0 + P1] += b[m0:m0 + P0, m1:m1 + P1] * self.windows[r]
 
     def _dot(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Real inner products of the images behind half spectra ``a``, ``b`` (n, ...) -> (n,),
@@ -394,7 +392,7 @@ class PatchFourier:
             first = True
         else:
             first = False
-        results = []
+        canvas = np.zeros(self.canvas, self.dtype)  # the blended solution, chunk by chunk
         chunks = list(self._chunks())
         for n_done, (tile_rows, sl) in enumerate(chunks):
             prior_hat = None
@@ -424,10 +422,12 @@ class PatchFourier:
                 xhat[sel] = xb
                 self._x_border[pos] = xb
             boxes = self._irfft(xhat).astype(self.dtype, copy=False)
-            results.append((range(sl.start, sl.stop), boxes))
+            self._blend(canvas, range(sl.start, sl.stop), boxes)
+            del boxes, xhat, inv_den  # a chunk's temporaries go before the next chunk's
             yield Progress("image step", n_done + 1, len(chunks),
                            f"tile chunk {n_done + 1}/{len(chunks)} solved")
-        return self._blend(results)
+        l0, l1 = self.lead
+        return canvas[l0:l0 + self.domain.shape[0], l1:l1 + self.domain.shape[1]]
 
     def _masked_cg(self, rows, pos, x, rhs, lam, beta, inv_den, iterations):
         """Batched preconditioned CG for the border tiles' masked box problems, on spectra.
