@@ -648,9 +648,7 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int):
     """
     from .deconv import iter_deconvolve
 
-    finest = run.finest
-    level = Level(finest.index, finest.blurred, finest.intrinsics, run.model,
-                  finest.max_blur, grid=finest.grid)
+    level = run.finest  # its MDF terms are rebuilt for the polish's own active set
     weights = initial_weights(level, motion.recentred())
     active = dilate(weights > 0, POLISH_DILATION)
     ep_data = None
