@@ -48,14 +48,6 @@ CASES = [("hyperlaplacian", "fourier"), ("hyperlaplacian", "cg"), ("rl", "cg"),
          ("wiener", "fourier")]
 
 
-def _rotation(shape, extent, seed=0):
-    from napari_edgecme import Intrinsics
-    from napari_edgecme.core.synth import densify_path, random_trajectory
-
-    cam = Intrinsics.from_image_shape(shape)
-    return densify_path(random_trajectory("rotation", cam, extent, rng=seed), "rotation", cam)
-
-
 def _vm(key: str) -> float:
     with open("/proc/self/status", encoding="ascii") as fh:
         for line in fh:
@@ -69,48 +61,23 @@ def _vm(key: str) -> float:
 # --------------------------------------------------------------------------------------
 
 def child_model(job: dict) -> dict:
-    import tracemalloc
-
     import numpy as np
 
+    from napari_edgecme._bench._memory import block_peak, rotation_motion
+    from napari_edgecme.core.deconv import FOURIER_BORDER_ITERATIONS
     from napari_edgecme.core.deconv_blocks import (
         auto_stride,
         block_memory_phases,
-        fourier_margin,
         latent_pad,
         psf_extent,
     )
-    from napari_edgecme.core.deconv_solvers import (
-        LatentDomain,
-        PatchFourier,
-        hyperlaplacian_steps,
-        richardson_lucy_steps,
-        wiener,
-    )
 
     side, method, solver = job["side"], job["method"], job["solver"]
-    motion = _rotation((side, side), job["extent"])
+    motion = rotation_motion((side, side), job["extent"])
     K, stride = psf_extent(motion), auto_stride(motion)
-    g = np.random.default_rng(0).random((side, side)).astype(np.float32)
     t0 = time.process_time()
-    tracemalloc.start()
-    base = tracemalloc.get_traced_memory()[0]
-    domain = LatentDomain(motion, (0, side, 0, side), latent_pad(K), stride)
-    fourier = None
-    if method == "wiener" or solver == "fourier":
-        fourier = PatchFourier(domain, margin=fourier_margin(K))
-    if method == "hyperlaplacian":
-        steps = hyperlaplacian_steps(domain, g, lam=1500.0, alpha=2 / 3, betas=[1.0],
-                                     inner_iterations=1, solver=solver, fourier=fourier,
-                                     cg_iterations=2, cg_tol=1e-9, border_iterations=8)
-    elif method == "rl":
-        steps = richardson_lucy_steps(domain, g, iterations=1)
-    else:
-        steps = wiener(domain, g, nsr=0.01, fourier=fourier, border_iterations=12)
-    for _ in steps:
-        pass
-    measured = tracemalloc.get_traced_memory()[1] - base
-    tracemalloc.stop()
+    measured, domain = block_peak(motion, side, method, solver,
+                                  FOURIER_BORDER_ITERATIONS.get(method, 0))
     phases = block_memory_phases((side, side), K, stride, method=method, solver=solver,
                                  operator_psf_size=psf_extent(motion, latent_pad(K)),
                                  n_poses=int(np.count_nonzero(motion.weights)))
@@ -123,12 +90,17 @@ def child_model(job: dict) -> dict:
 def child_large(job: dict) -> dict:
     import numpy as np
 
+    from napari_edgecme import Intrinsics
     from napari_edgecme.core.deconv import iter_deconvolve
     from napari_edgecme.core.deconv_blocks import psf_extent
+    from napari_edgecme.core.synth import densify_path, random_trajectory
 
     shape = tuple(job["shape"])
     image = np.random.default_rng(0).integers(0, 256, (*shape, 3), dtype=np.uint8)
-    motion = _rotation(shape, job["extent"])
+    # _bench._memory.rotation_motion, spelled out: this child also runs the --before tree
+    cam = Intrinsics.from_image_shape(shape)
+    motion = densify_path(random_trajectory("rotation", cam, job["extent"], rng=0),
+                          "rotation", cam)
     before = {"rss": _vm("VmRSS"), "hwm": _vm("VmHWM")}
     params = {"beta_max": 2.0 ** (1.5 * (job["steps"] - 1))}  # beta_rate 2 sqrt 2
     if job["block_size"] is not None:
@@ -188,6 +160,7 @@ def part_model(sides) -> list[str]:
 def part_large(size: int, psf: int, steps: int, before: str | None) -> list[str]:
     import numpy as np
 
+    from napari_edgecme._bench._memory import rotation_motion
     from napari_edgecme.core.deconv_blocks import (
         BlockPlan,
         auto_block_size,
@@ -199,7 +172,7 @@ def part_large(size: int, psf: int, steps: int, before: str | None) -> list[str]
 
     shape = SHAPES[size]
     extent = EXTENTS[(size, psf)]
-    motion = _rotation(shape, extent)
+    motion = rotation_motion(shape, extent)
     K, stride = psf_extent(motion), auto_stride(motion)
 
     def modelled(block_size):

@@ -6,12 +6,10 @@ allocate; ``block_size=None`` (the default) picks the largest block up to 2048 p
 every block fits ``BLOCK_MEMORY_BUDGET`` by it, never below the block's margin.
 """
 
-import tracemalloc
-
 import numpy as np
 import pytest
 
-from napari_edgecme import Intrinsics
+from napari_edgecme._bench._memory import block_peak, rotation_motion
 from napari_edgecme.core import deconv, deconv_blocks
 from napari_edgecme.core.deconv import DEFAULTS, deconvolve, iter_deconvolve
 from napari_edgecme.core.deconv_blocks import (
@@ -21,27 +19,13 @@ from napari_edgecme.core.deconv_blocks import (
     auto_stride,
     block_margin,
     block_memory,
-    fourier_margin,
     latent_pad,
     psf_extent,
 )
-from napari_edgecme.core.deconv_solvers import (
-    LatentDomain,
-    PatchFourier,
-    hyperlaplacian_steps,
-    richardson_lucy_steps,
-    wiener,
-)
 from napari_edgecme.core.operators import blur
-from napari_edgecme.core.synth import densify_path, random_trajectory
 
 #: 24 MP, as the issue's target photo (the choice is geometry only: nothing is allocated)
 SHAPE_24MP = (4000, 6000)
-
-
-def rotation(shape, extent, seed=0):
-    cam = Intrinsics.from_image_shape(shape)
-    return densify_path(random_trajectory("rotation", cam, extent, rng=seed), "rotation", cam)
 
 
 def worst_block(shape, motion, size, **model):
@@ -66,7 +50,7 @@ def test_block_size_shrinks_as_the_psf_grows_and_is_the_largest_that_fits():
     budget = deconv_blocks.BLOCK_MEMORY_BUDGET
     sizes, psfs = [], []
     for extent in (30, 62, 110, 150):  # PSF sides 43, 85, 151, 203 px at 24 MP
-        motion = rotation(SHAPE_24MP, extent)
+        motion = rotation_motion(SHAPE_24MP, extent)
         K = psf_extent(motion)
         size = auto_block_size(SHAPE_24MP, motion)
         sizes.append(size)
@@ -87,7 +71,7 @@ def test_block_size_shrinks_as_the_psf_grows_and_is_the_largest_that_fits():
 
 
 def test_the_budget_at_24_mp_and_a_151_px_psf_leaves_room_in_4_gib():
-    motion = rotation(SHAPE_24MP, 110)
+    motion = rotation_motion(SHAPE_24MP, 110)
     assert psf_extent(motion) == 151
     size = auto_block_size(SHAPE_24MP, motion)
     block = worst_block(SHAPE_24MP, motion, size)
@@ -99,12 +83,12 @@ def test_the_budget_at_24_mp_and_a_151_px_psf_leaves_room_in_4_gib():
 
 
 def test_a_small_photo_is_one_block_as_before():
-    motion = rotation((300, 400), 20)
+    motion = rotation_motion((300, 400), 20)
     assert auto_block_size((300, 400), motion) == MAX_BLOCK
 
 
 def test_a_budget_nothing_fits_gives_the_margin_not_less():
-    motion = rotation((1500, 1500), 40)
+    motion = rotation_motion((1500, 1500), 40)
     K = psf_extent(motion)
     assert auto_block_size((1500, 1500), motion, budget=1) == block_margin(K)
 
@@ -120,32 +104,6 @@ def test_a_budget_nothing_fits_gives_the_margin_not_less():
 MODEL_FACTOR = 1.5
 
 
-def measured_block(motion, method, solver, side):
-    """tracemalloc peak (bytes) of one whole-image block's operator build and solve."""
-    K = psf_extent(motion)
-    g = np.random.default_rng(0).random((side, side)).astype(np.float32)
-    tracemalloc.start()
-    try:
-        base = tracemalloc.get_traced_memory()[0]
-        domain = LatentDomain(motion, (0, side, 0, side), latent_pad(K), auto_stride(motion))
-        fourier = None
-        if method == "wiener" or solver == "fourier":
-            fourier = PatchFourier(domain, margin=fourier_margin(K))
-        if method == "hyperlaplacian":
-            steps = hyperlaplacian_steps(domain, g, lam=1500.0, alpha=2 / 3, betas=[1.0],
-                                         inner_iterations=1, solver=solver, fourier=fourier,
-                                         cg_iterations=2, cg_tol=1e-9, border_iterations=2)
-        elif method == "rl":
-            steps = richardson_lucy_steps(domain, g, iterations=1)
-        else:
-            steps = wiener(domain, g, nsr=0.01, fourier=fourier, border_iterations=2)
-        for _ in steps:
-            pass
-        return tracemalloc.get_traced_memory()[1] - base
-    finally:
-        tracemalloc.stop()
-
-
 @pytest.mark.parametrize("extent, method, solver", [
     (21, "hyperlaplacian", "fourier"),
     (41, "hyperlaplacian", "fourier"),
@@ -155,10 +113,10 @@ def measured_block(motion, method, solver, side):
 ])
 def test_model_is_within_the_stated_factor_of_the_allocations(extent, method, solver):
     side = 256
-    motion = rotation((side, side), extent)
+    motion = rotation_motion((side, side), extent)
     K = psf_extent(motion)
     assert K in (31, 61)
-    measured = measured_block(motion, method, solver, side)
+    measured, _ = block_peak(motion, side, method, solver, border_iterations=2)
     model = block_memory((side, side), K, auto_stride(motion), method=method, solver=solver,
                          operator_psf_size=psf_extent(motion, latent_pad(K)),
                          n_poses=np.count_nonzero(motion.weights))
@@ -180,7 +138,7 @@ def test_the_model_grows_with_the_psf_at_a_fixed_block():
 def case():
     """A 200 x 240 photo shaken by a 9 px camera rotation."""
     shape = (200, 240)
-    motion = rotation(shape, 9, seed=3)
+    motion = rotation_motion(shape, 9, seed=3)
     rng = np.random.default_rng(0)
     sharp = np.clip(np.cumsum(rng.normal(0, 0.05, shape), axis=1) % 1.0, 0, 1)
     return np.clip(blur(sharp.astype(np.float32), motion), 0, 1).astype(np.float32), motion
