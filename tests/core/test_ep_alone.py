@@ -206,3 +206,35 @@ def test_the_second_start_keeps_the_estimate_the_l0_cost_prefers(seed, right_fir
     assert info.start == ("blob" if right_first else "edge profiles")
     assert (first_cost < second_cost) == right_first
     assert motion_psf_ncc(kept, case.motion) >= 0.8
+
+
+@pytest.mark.parametrize("excess, kept", [(0.003, "edge profiles"), (-0.01, "edge profiles"),
+                                          (0.01, "blob")])
+def test_a_near_tie_of_the_two_starts_goes_to_the_edge_profiles_start(excess, kept,
+                                                                      monkeypatch):
+    """The L0 cost cannot settle a difference under ``SECOND_START_TIE`` (0.5%): then
+    the start the edge profiles chose is kept, and the message says it was a tie; a
+    second start costing 1% more loses."""
+    from napari_edgecme.core.progress import drive
+    from napari_edgecme.core.pyramid import contrast_gain
+
+    case, _ = _shaken("rotation", 11, 3)
+    truth = case.motion.recentred()
+    offset, gain = contrast_gain(case.blurred)
+    work = ((case.blurred - offset) * gain).astype(case.blurred.dtype)
+    focal = truth.intrinsics.focal_px
+    info = estimate.EstimateInfo("xu", "rotation", 13.0, focal, 1.0)
+    run = estimate._CoarseToFine(work, truth.intrinsics, "rotation", 13.0, [1.0], [1], "xu",
+                                 None, gain, 2e-3, 0.0, 6e-3, False, info)
+    first_estimate, latent, _ = drive(run.iterate(0, 1, start=truth))
+    costs = iter([1e-3, 1e-3 * (1 + excess)])  # the first start's cost, then the second's
+
+    def fixed_cost(level, motion, lambda_f, band=None):
+        return next(costs)
+        yield  # a generator, as iter_l0_cost
+
+    monkeypatch.setattr(estimate, "iter_l0_cost", fixed_cost)
+    info = estimate.EstimateInfo("xu+ep", "rotation", 13.0, focal, 1.0)
+    drive(estimate._second_start(run, truth, first_estimate, latent, 6e-3, info, 0, 1))
+    assert info.start == kept
+    assert ("kept in a tie" in info.message) == (kept == "edge profiles" and excess > 0)
