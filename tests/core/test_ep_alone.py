@@ -173,6 +173,22 @@ def test_xu_ep_runs_as_xu_when_its_profiles_disagree():
     assert est.info.start_costs is None  # nor started from what they say
 
 
+def _one_level_xu_run(seed: int, iterations: int):
+    """``(case, truth re-centred, run)``: an 11 px camera rotation of a test scene and a
+    one-level Xu alternation on it (``iterations`` per start), as Xu+Ep's second start
+    runs its finest scale."""
+    from napari_edgecme.core.pyramid import contrast_gain
+
+    case, _ = _shaken("rotation", 11, seed)
+    truth = case.motion.recentred()
+    offset, gain = contrast_gain(case.blurred)
+    work = ((case.blurred - offset) * gain).astype(case.blurred.dtype)
+    info = estimate.EstimateInfo("xu", "rotation", 13.0, truth.intrinsics.focal_px, 1.0)
+    run = estimate._CoarseToFine(work, truth.intrinsics, "rotation", 13.0, [1.0],
+                                 [iterations], "xu", None, gain, 2e-3, 0.0, 6e-3, False, info)
+    return case, truth, run
+
+
 @pytest.mark.parametrize("seed", [3, 4])
 @pytest.mark.parametrize("right_first", [True, False], ids=["right-first", "right-second"])
 def test_the_second_start_keeps_the_estimate_the_l0_cost_prefers(seed, right_first):
@@ -184,22 +200,14 @@ def test_the_second_start_keeps_the_estimate_the_l0_cost_prefers(seed, right_fir
     0.68e-3 (seed 4), and the estimate kept has NCC 0.86 / 0.90."""
     from napari_edgecme.core.motion import CameraMotion
     from napari_edgecme.core.progress import drive
-    from napari_edgecme.core.pyramid import contrast_gain
 
-    case, _ = _shaken("rotation", 11, seed)
-    truth = case.motion.recentred()
+    case, truth, run = _one_level_xu_run(seed, 3)
     turned = CameraMotion(truth.model, truth.intrinsics,
                           truth.poses[:, [1, 0, 2]] * [1, -1, 1], truth.weights)
     assert motion_psf_ncc(turned, case.motion) < 0.2
-    offset, gain = contrast_gain(case.blurred)
-    work = ((case.blurred - offset) * gain).astype(case.blurred.dtype)
-    focal = truth.intrinsics.focal_px
-    info = estimate.EstimateInfo("xu", "rotation", 13.0, focal, 1.0)
-    run = estimate._CoarseToFine(work, truth.intrinsics, "rotation", 13.0, [1.0], [3], "xu",
-                                 None, gain, 2e-3, 0.0, 6e-3, False, info)
     first, second = (truth, turned) if right_first else (turned, truth)
     first_estimate, latent, _ = drive(run.iterate(0, 3, start=first))
-    info = estimate.EstimateInfo("xu+ep", "rotation", 13.0, focal, 1.0)
+    info = estimate.EstimateInfo("xu+ep", "rotation", 13.0, truth.intrinsics.focal_px, 1.0)
     kept, _, _, _ = drive(estimate._second_start(run, second, first_estimate, latent, 6e-3,
                                                  info, 0, 3))
     first_cost, second_cost = info.start_costs
@@ -216,16 +224,8 @@ def test_a_near_tie_of_the_two_starts_goes_to_the_edge_profiles_start(excess, ke
     the start the edge profiles chose is kept, and the message says it was a tie; a
     second start costing 1% more loses."""
     from napari_edgecme.core.progress import drive
-    from napari_edgecme.core.pyramid import contrast_gain
 
-    case, _ = _shaken("rotation", 11, 3)
-    truth = case.motion.recentred()
-    offset, gain = contrast_gain(case.blurred)
-    work = ((case.blurred - offset) * gain).astype(case.blurred.dtype)
-    focal = truth.intrinsics.focal_px
-    info = estimate.EstimateInfo("xu", "rotation", 13.0, focal, 1.0)
-    run = estimate._CoarseToFine(work, truth.intrinsics, "rotation", 13.0, [1.0], [1], "xu",
-                                 None, gain, 2e-3, 0.0, 6e-3, False, info)
+    _, truth, run = _one_level_xu_run(3, 1)
     first_estimate, latent, _ = drive(run.iterate(0, 1, start=truth))
     costs = iter([1e-3, 1e-3 * (1 + excess)])  # the first start's cost, then the second's
 
@@ -234,7 +234,7 @@ def test_a_near_tie_of_the_two_starts_goes_to_the_edge_profiles_start(excess, ke
         yield  # a generator, as iter_l0_cost
 
     monkeypatch.setattr(estimate, "iter_l0_cost", fixed_cost)
-    info = estimate.EstimateInfo("xu+ep", "rotation", 13.0, focal, 1.0)
+    info = estimate.EstimateInfo("xu+ep", "rotation", 13.0, truth.intrinsics.focal_px, 1.0)
     drive(estimate._second_start(run, truth, first_estimate, latent, 6e-3, info, 0, 1))
     assert info.start == kept
     assert ("kept in a tie" in info.message) == (kept == "edge profiles" and excess > 0)
