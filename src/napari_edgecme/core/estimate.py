@@ -630,16 +630,21 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
 
 #: MDF updates of the polish that ends Xu and Xu+Ep (0: none). Each solves the method's
 #: data term (Eq. 22) against the hyper-Laplacian latent of the current estimate
-#: (:func:`~.deconv.iter_deconvolve`, its defaults) on the finest level, with the
-#: estimate's support dilated by :data:`POLISH_DILATION` grid steps and the strongest
-#: :data:`POLISH_SALIENT` of the salient gradients. The L0 latent the alternation
-#: works with has sharper, emptier edges than the photo's, and the MDF fitted to it is
-#: too small and too sharp (estimates' extent about 0.9x the truth's on lai); the
-#: hyper-Laplacian latent keeps the detail and the soft edges the non-blind
+#: (:func:`~.deconv.iter_deconvolve` with :data:`POLISH_DECONVOLUTION`) on the finest
+#: level, with the estimate's support dilated by :data:`POLISH_DILATION` grid steps and
+#: the strongest :data:`POLISH_SALIENT` of the salient gradients. The L0 latent the
+#: alternation works with has sharper, emptier edges than the photo's, and the MDF
+#: fitted to it is too small and too sharp (estimates' extent about 0.9x the truth's on
+#: lai); the hyper-Laplacian latent keeps the detail and the soft edges the non-blind
 #: deconvolution will keep. See ``benchmarks/results/polish.md``.
 POLISH_UPDATES = 2
 POLISH_SALIENT = 0.15
 POLISH_DILATION = 2
+#: The polish's latent: the default hyper-Laplacian deconvolution but for a shorter
+#: splitting schedule (5 steps from beta = 4 instead of 6 from 1) and 4 masked-CG
+#: iterations on the border tiles instead of 8 (``benchmarks/results/polish.md``: the
+#: cheaper latent, measured).
+POLISH_DECONVOLUTION = {"beta_start": 4.0, "border_iterations": 4}
 
 
 def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int):
@@ -673,7 +678,8 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int):
     for it in range(POLISH_UPDATES):
         where = f"polish {it + 1}/{POLISH_UPDATES}"
         latent = yield from relay_as(
-            iter_deconvolve(unit, level.motion(weights), "hyperlaplacian"),
+            iter_deconvolve(unit, level.motion(weights), "hyperlaplacian",
+                            **POLISH_DECONVOLUTION),
             Progress("estimate", step, total, f"{where}: deconvolving (hyper-Laplacian)",
                      n_scales=n_scales))
         latent = (latent if unit is g else latent * (hi - lo) + lo).astype(g.dtype, copy=False)
