@@ -32,9 +32,10 @@ Parts (``--parts``, comma-separated; default ``run``):
     before each stop). Reported: the latency from the first stop request to the return
     of control (or the ``Cancelled`` exception), the records in between, how it ended.
 ``cli``
-    ``edgecme deblur IMG.png -o OUT.png`` in a fresh process (the command-line entry
-    point run by a tiny wrapper that prints the process's ``VmHWM`` at exit): wall,
-    CPU, peak memory.
+    ``edgecme deblur IMG.png -o OUT.png --save-motion M.json`` in a fresh process (the
+    command-line entry point run by a tiny wrapper that prints the process's ``VmHWM``
+    at exit): wall, CPU, peak memory, the command's summary line, and the PSF NCC of the
+    saved motion against the truth at full resolution.
 
     python benchmarks/bench_large.py [--size 12|24] [--parts run,cancel,cli]
                                      [--method xu+ep] [--stops 6] [--keep DIR]
@@ -302,11 +303,21 @@ print("{marker}" + __import__("json").dumps({{"rc": rc, "seconds": time.perf_cou
 """
 
 
-def run_cli(png: str, out: str) -> dict:
+def run_cli(png: str, out: str, truth: str) -> dict:
+    """The command with no option but ``--save-motion``; its motion scored against ``truth``."""
+    from napari_edgecme.core.metrics import motion_psf_ncc
+    from napari_edgecme.core.motion import CameraMotion
+
     code = _CLI_WRAPPER.format(marker=_MARKER)
-    proc = subprocess.run([sys.executable, "-c", code, "deblur", png, "-o", out],
-                          capture_output=True, text=True)
-    return _parse(proc)
+    motion = str(Path(out).with_suffix(".motion.json"))
+    proc = subprocess.run([sys.executable, "-c", code, "deblur", png, "-o", out,
+                           "--save-motion", motion], capture_output=True, text=True)
+    result = _parse(proc)
+    summary = [line for line in (proc.stdout + proc.stderr).splitlines()
+               if line.startswith("edgecme: ") and not line.startswith("edgecme: warning")]
+    result["summary"] = summary[-1] if summary else ""
+    result["psf_ncc"] = motion_psf_ncc(CameraMotion.load(motion), CameraMotion.load(truth))
+    return result
 
 
 def _parse(proc) -> dict:
@@ -413,7 +424,8 @@ def report(size: int, result: dict) -> str:
                   f"{_mark(c['peak_rss_mib'] / 1024 <= LIMIT_GIB)} (<= {LIMIT_GIB:g} GiB)"
                   + (f"; largest sampled RSS {c['sampled_peak_mib']:.0f} MiB during "
                      f"\"{c['sampled_peak_at']}\"" if c.get("sampled_peak_at") else "")
-                  + ".", ""]
+                  + f"; PSF NCC vs truth {c['psf_ncc']:.3f}.", "",
+                  f"Summary: `{c['summary']}`", ""]
     return "\n".join(lines)
 
 
@@ -479,7 +491,8 @@ def main(argv=None) -> int:
                     print(f"stop at {stage} {at}: {s.get('latency_s', float('nan')):.2f} s "
                           f"({s.get('stage')}: {s.get('message')})", file=sys.stderr)
         if "cli" in parts:
-            result["cli"] = run_cli(paths["png"], str(Path(tmp) / "restored.png"))
+            result["cli"] = run_cli(paths["png"], str(Path(tmp) / "restored.png"),
+                                    paths["truth"])
     text = report(args.size, result)
     print(text)
     if args.json:
