@@ -640,11 +640,12 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
 POLISH_UPDATES = 2
 POLISH_SALIENT = 0.15
 POLISH_DILATION = 2
-#: The polish's latent: the default hyper-Laplacian deconvolution but for a shorter
-#: splitting schedule (5 steps from beta = 4 instead of 6 from 1) and 4 masked-CG
-#: iterations on the border tiles instead of 8 (``benchmarks/results/polish.md``: the
-#: cheaper latent, measured).
-POLISH_DECONVOLUTION = {"beta_start": 4.0, "border_iterations": 4}
+#: Keywords of the polish's hyper-Laplacian deconvolution (empty: its defaults). A
+#: cheaper latent -- splitting from beta = 4 (5 steps) and 4 border CG iterations, 1.8x
+#: faster -- left `lai` unchanged but collapsed the estimate of a small photo with
+#: clipped highlights (``tests/core/test_no_blur.py``; its low-beta steps matter there),
+#: so it is not used (``benchmarks/results/polish.md``).
+POLISH_DECONVOLUTION: dict = {}
 
 
 def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int):
