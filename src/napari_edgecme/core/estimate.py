@@ -62,7 +62,14 @@ from .latent import iter_l0_latent
 from .mdf_update import edge_images, iter_mdf_update
 from .motion import CameraMotion
 from .photometry import LUMA
-from .profile_fit import EP_MAX_MISFIT, RobustProfileFit, check_coverage
+from .profile_fit import (
+    EP_EDGE_SPREAD,
+    EP_MAX_MISFIT,
+    EP_SPREAD_TOLERANCE,
+    XU_EP_GATE_MISFIT,
+    RobustProfileFit,
+    check_coverage,
+)
 from .progress import Progress, StopRequested, drive, relay_as
 from .pyramid import (
     Level,
@@ -159,6 +166,9 @@ class EstimateInfo:
     #: gate, :data:`SECOND_START`), and the L0 costs of the two starts' estimates
     start: str = "blob"
     start_costs: tuple[float, float] | None = None
+    #: EpAlone: the edge spread (px of the working copy) of the profile model whose
+    #: estimate was kept, 0 for ideal steps (:data:`~.profile_fit.EP_EDGE_SPREAD`)
+    edge_spread: float = 0.0
     #: what the blur-size measurement found when ``max_blur`` was not given, e.g. "blur
     #: about 40 px, from 85 edge profiles" (:class:`~.blur_size.BlurSize`); None if given
     blur_size: str | None = None
@@ -199,7 +209,7 @@ def _luminance(img: np.ndarray) -> np.ndarray:
 
 
 #: Xu+Ep first runs EpAlone on its profiles and drops the edge-profile term (runs as
-#: Xu, with a warning) when they leave more than :data:`EP_MAX_MISFIT` unexplained.
+#: Xu, with a warning) when they leave more than :data:`XU_EP_GATE_MISFIT` unexplained.
 XU_EP_GATE = True
 
 def _check_lambda(value, name, default, allow_zero=False):
@@ -375,11 +385,12 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                                                           intr_full.focal_px, work_scale))
                 gate_motion, _, step = yield from check.iterate(step, total)
                 info.profile_misfit = check.profile_misfit
-                if info.profile_misfit > EP_MAX_MISFIT:
+                if info.profile_misfit > XU_EP_GATE_MISFIT:
                     warnings.warn(
                         f"the {len(work_profiles)} edge profiles do not agree on one camera "
                         f"motion ({info.profile_misfit:.0%} of their energy unexplained by "
-                        f"EpAlone on them; at most {EP_MAX_MISFIT:.0%}): running method 'xu'",
+                        f"EpAlone on them; at most {XU_EP_GATE_MISFIT:.0%}): running method "
+                        "'xu'",
                         UserWarning, stacklevel=2)
                     method, lambda_ip, work_profiles = "xu", 0.0, None
                     info.method = "xu"
@@ -396,6 +407,10 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         motion, latent, step = yield from run.iterate(step, total)
         if method == "ep":
             info.profile_misfit = run.profile_misfit
+            if EP_EDGE_SPREAD > 0:  # the same fit, with soft edges (profile_fit.py)
+                total += sum(level_iters)
+                run, step = yield from _soft_edges(run, info, step, total)
+                motion = run.motion
         if method == "ep" and info.profile_misfit > EP_MAX_MISFIT:
             raise ValueError(
                 f"EpAlone: the {len(work_profiles)} edge profiles do not agree on one camera "
@@ -508,6 +523,9 @@ class _CoarseToFine:
         self.method, self.profiles, self.gain = method, profiles, gain
         self.lambda_w, self.lambda_ip, self.lambda_f = lambda_w, lambda_ip, lambda_f
         self.preview, self.info = preview, info
+        #: EpAlone: the edge spread of its profile model (px of the working copy;
+        #: :data:`~.profile_fit.EP_EDGE_SPREAD`), 0 for ideal step edges
+        self.edge_spread = 0.0
         self.motion: CameraMotion | None = None
         self.latent = None
         self.finest: Level | None = None
@@ -532,7 +550,7 @@ class _CoarseToFine:
             ep_data = None
             if self.profiles is not None and method == "ep":  # Eq. 16, robust
                 ep_data = RobustProfileFit(self.profiles.rescaled(s) if s != 1
-                                           else self.profiles)
+                                           else self.profiles, self.edge_spread * s)
             elif self.profiles is not None and self.lambda_ip > 0:  # Eq. 22's Eq. 19 term
                 ep_data = edge_images(level, self.profiles, s, self.gain)
             # coarse levels: sharper edges, larger weight
@@ -570,6 +588,32 @@ class _CoarseToFine:
             self.finest = level
         return self.motion, self.latent, step
 
+
+
+def _soft_edges(run: _CoarseToFine, info: EstimateInfo, step: int, total: int):
+    """EpAlone again with the soft-edge profile model; the run whose estimate is kept.
+
+    A generator of progress records returning ``(run, step)``: the run with an edge
+    spread of :data:`~.profile_fit.EP_EDGE_SPREAD` when it leaves at most
+    :data:`~.profile_fit.EP_SPREAD_TOLERANCE` times the misfit of the ideal-step fit
+    ``run`` (the photo's edges are soft), else ``run``. ``info`` records the choice.
+    """
+    soft = _CoarseToFine(run.work, run.intrinsics, run.model, run.blur_work, run.scales,
+                         run.level_iters, run.method, run.profiles, run.gain, run.lambda_w,
+                         run.lambda_ip, run.lambda_f, run.preview, info)
+    soft.edge_spread = EP_EDGE_SPREAD
+    yield Progress("estimate", step, total, f"EpAlone again, for soft edges "
+                   f"({EP_EDGE_SPREAD:g} px spread)", n_scales=len(run.scales))
+    _, _, step = yield from soft.iterate(step, total)
+    step_misfit = run.profile_misfit
+    if soft.profile_misfit <= EP_SPREAD_TOLERANCE * step_misfit:
+        info.edge_spread, info.profile_misfit = EP_EDGE_SPREAD, soft.profile_misfit
+        info.message += (f"soft edges ({EP_EDGE_SPREAD:g} px spread: misfit "
+                         f"{soft.profile_misfit:.1%} vs {step_misfit:.1%} as steps); ")
+        return soft, step
+    info.message += (f"step edges (misfit {step_misfit:.1%}; {soft.profile_misfit:.1%} "
+                     f"with a {EP_EDGE_SPREAD:g} px spread); ")
+    return run, step
 
 
 #: Xu+Ep runs its finest-scale alternation a second time, started from the EpAlone

@@ -109,8 +109,9 @@ def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient:
         poses = level.grid.poses(active)
         level.cache = {"key": key}
         if method == "ep":
-            level.cache["measurement"] = measurement_matrix(ep_data.profiles, level.model,
-                                                            level.intrinsics, poses)
+            level.cache["measurement"] = measurement_matrix(
+                ep_data.profiles, level.model, level.intrinsics, poses,
+                edge_spread=ep_data.edge_spread)
         if method != "ep":
             pgrid = level.patch_grid(poses)
             level.cache.update(pgrid=pgrid, basis=psf_basis(level.model, level.intrinsics,
