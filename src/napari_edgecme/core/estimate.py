@@ -18,7 +18,9 @@ pyramid with ratio ``1/sqrt(2)``):
   takes a weight ``c_i`` per profile: its confidence times its agreement with the
   current estimate, updated after every MDF update (:mod:`~.profile_fit`). On the 20
   cases of the ``lai`` quick set the mean PSF NCC against the truth went from 0.543
-  (Eq. 19) to 0.601, and the estimate takes 3 s instead of 23 s;
+  (Eq. 19) to 0.601, and the estimate takes 3 s instead of 23 s. EpAlone fits the
+  profiles twice, as ideal steps and as soft edges (:data:`~.profile_fit.EP_EDGE_SPREAD`),
+  and keeps the soft fit unless it explains the profiles clearly worse;
 * **Xu** alternates the L0-gradient latent update (Eq. 21) and the gradient-domain
   MDF update; **Xu+Ep** adds ``lambda_Ip`` times the edge-profile term (Eq. 22).
   ``lambda_Ip = 0`` is exactly Xu. Xu+Ep first runs EpAlone on its profiles (the gate,
