@@ -16,6 +16,13 @@ fit bends towards them. Two things weight each profile ``i``:
 
 On the 20 cases of the ``lai`` quick set, fitting Eq. 16 on the full pose grid, the mean
 PSF NCC against the truth is 0.583 with equal weights and 0.604 with both weights.
+
+The profile model: a photo's edges are not ideal steps, so each profile is also fitted
+as the projection convolved with a small Gaussian (:data:`EP_EDGE_SPREAD`); EpAlone keeps
+that soft fit unless it explains the profiles clearly worse (:data:`EP_SPREAD_TOLERANCE`).
+Then the self-checks: a set whose normals are nearly parallel is refused
+(:func:`check_coverage`), and so is an estimate that leaves more than
+:data:`EP_MAX_MISFIT` of the profiles' energy unexplained.
 """
 
 from __future__ import annotations
