@@ -796,3 +796,21 @@ def test_the_summary_says_when_xu_ep_kept_the_start_from_the_profiles():
     assert "start" not in plain
     assert kept == plain.replace(", 0.0 s)", ", kept the start from the profiles' estimate, "
                                                "0.0 s)")
+
+
+def test_the_summary_says_which_profile_model_epalone_kept():
+    from napari_edgecme.cli._deblur import estimate_summary
+    from napari_edgecme.core.camera import Intrinsics
+    from napari_edgecme.core.estimate import EstimateInfo, MotionEstimate
+    from napari_edgecme.core.motion import CameraMotion
+
+    motion = CameraMotion.identity("inplane", Intrinsics.from_image_shape((64, 64)))
+    info = EstimateInfo("ep", "inplane", 9.0, 77.0, 1.0, n_profiles=30, converged=True)
+    steps = estimate_summary(MotionEstimate(motion, None, None, info), "ep", 9.0, "default")
+    info.edge_spread = 1.0
+    soft = estimate_summary(MotionEstimate(motion, None, None, info), "ep", 9.0, "default")
+    assert "30 edge profiles, fitted as step edges, 0.0 s)" in steps
+    assert soft == steps.replace("step edges", "soft edges (1 px spread)")
+    xu = EstimateInfo("xu", "inplane", 9.0, 77.0, 1.0, converged=True)
+    assert "fitted as" not in estimate_summary(MotionEstimate(motion, None, None, xu), "xu",
+                                               9.0, "default")

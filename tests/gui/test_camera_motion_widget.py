@@ -269,3 +269,17 @@ def test_a_sharp_image_reads_no_blur_found_in_the_status(qtbot, viewer_model, ed
     assert widget.last_estimate.info.no_blur
     assert widget.status.text().startswith("Camera motion: no blur found")
     assert "larger max blur" in widget.status.text()
+
+
+def test_an_epalone_run_says_which_profile_model_it_kept(qtbot, viewer_model, edge_case,
+                                                         wait_for_run):
+    image = viewer_model.add_image(edge_case.blurred, name="shaken")
+    widget = make_widget(qtbot, viewer_model, image, method="ep")
+    widget.run_button.click()
+    wait_for_run(widget)
+    assert widget.runner.outcome == "done"
+    summary = viewer_model.layers["shaken PSF field"].metadata["edgecme_estimate"]
+    assert summary["method"] == "ep"
+    said = ("fitted as soft edges (1 px spread)" if summary["edge_spread"] > 0
+            else "fitted as step edges")
+    assert said in widget.status.text()

@@ -392,6 +392,7 @@ class CameraMotionWidget(QWidget):
                    "focal_px": info.focal_px, "n_profiles": info.n_profiles,
                    "seconds": round(info.seconds, 3), "converged": info.converged,
                    "message": info.message, "blur_size": info.blur_size,
+                   "edge_spread": info.edge_spread,
                    "gamma": info.gamma, "gamma_reason": info.gamma_reason}
         meta = {MOTION_KEY: motion.to_dict(), SOURCE_KEY: image.name, ESTIMATE_KEY: summary}
         glyphs = psf_glyphs(motion, psf_grid(motion.image_shape))
@@ -439,6 +440,9 @@ class CameraMotionWidget(QWidget):
                 f"{glyphs.enlargement}x its size")
         if info.message.startswith("fell back"):
             text += f"; {info.message.split(';')[0]}"
+        if info.method == "ep" and info.n_profiles:  # which profile model EpAlone kept
+            text += (f"; fitted as soft edges ({info.edge_spread:g} px spread)"
+                     if info.edge_spread > 0 else "; fitted as step edges")
         return text + measured + gamma
 
     def _end(self, outcome: str) -> None:
