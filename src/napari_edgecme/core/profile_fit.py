@@ -121,8 +121,9 @@ XU_EP_GATE_MISFIT = 0.10
 #: with the true ones spread by 1 px). Fitted as ideal steps, that spread is explained
 #: by a thicker MDF -- a blob where the camera traced a thin path -- and deconvolving
 #: with the blob rings. EpAlone fits both models and keeps the soft one unless it leaves
-#: more than :data:`EP_SPREAD_TOLERANCE` times the misfit of the step model (on ideal
-#: steps, a synthetic scene, it leaves 4-6 times more; on soft ones, the same).
+#: more than :data:`EP_SPREAD_TOLERANCE` times the misfit of the step model (on a
+#: synthetic scene of ideal steps it leaves 1.4-6 times more; on the same scene with
+#: soft edges, the same).
 #: ``benchmarks/results/edge-spread.md`` has the study.
 EP_EDGE_SPREAD = 1.0
 #: See :data:`EP_EDGE_SPREAD`. On ``lai`` (counting refusals as the input returned)
