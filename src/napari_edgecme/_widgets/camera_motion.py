@@ -440,9 +440,8 @@ class CameraMotionWidget(QWidget):
                 f"{glyphs.enlargement}x its size")
         if info.message.startswith("fell back"):
             text += f"; {info.message.split(';')[0]}"
-        if info.method == "ep" and info.n_profiles:  # which profile model EpAlone kept
-            text += (f"; fitted as soft edges ({info.edge_spread:g} px spread)"
-                     if info.edge_spread > 0 else "; fitted as step edges")
+        if info.profile_model():  # which profile model EpAlone kept
+            text += f"; fitted as {info.profile_model()}"
         return text + measured + gamma
 
     def _end(self, outcome: str) -> None:

@@ -96,10 +96,8 @@ def estimate_summary(result, requested: str, max_blur: float, focal_source: str)
             text += (f" in {cov['orientation_bins']}/8 orientations"
                      + (f" and {cov['cells']}/9 image cells" if cov["cells"] is not None
                         else ""))
-    if info.method == "ep" and info.n_profiles:  # which profile model EpAlone kept
-        spread = getattr(info, "edge_spread", 0.0)
-        text += (f", fitted as soft edges ({spread:g} px spread)" if spread > 0
-                 else ", fitted as step edges")
+    if info.profile_model():  # which profile model EpAlone kept
+        text += f", fitted as {info.profile_model()}"
     if getattr(info, "start", "blob") == "edge profiles":
         text += ", kept the start from the profiles' estimate"
     text += f", {info.seconds:.1f} s)"

@@ -175,6 +175,14 @@ class EstimateInfo:
     #: about 40 px, from 85 edge profiles" (:class:`~.blur_size.BlurSize`); None if given
     blur_size: str | None = None
 
+    def profile_model(self) -> str | None:
+        """EpAlone: the profile model kept, "soft edges (1 px spread)" or "step edges";
+        None for the other methods and when no profiles were used."""
+        if self.method != "ep" or not self.n_profiles:
+            return None
+        return (f"soft edges ({self.edge_spread:g} px spread)" if self.edge_spread > 0
+                else "step edges")
+
 
 @dataclass
 class MotionEstimate:
@@ -519,7 +527,8 @@ class _CoarseToFine:
     """
 
     def __init__(self, work, intrinsics, model, blur_work, scales, level_iters, method,
-                 profiles, gain, lambda_w, lambda_ip, lambda_f, preview, info):
+                 profiles, gain, lambda_w, lambda_ip, lambda_f, preview, info, *,
+                 edge_spread: float = 0.0):
         self.work, self.intrinsics, self.model = work, intrinsics, model
         self.blur_work, self.scales, self.level_iters = blur_work, scales, level_iters
         self.method, self.profiles, self.gain = method, profiles, gain
@@ -527,13 +536,25 @@ class _CoarseToFine:
         self.preview, self.info = preview, info
         #: EpAlone: the edge spread of its profile model (px of the working copy;
         #: :data:`~.profile_fit.EP_EDGE_SPREAD`), 0 for ideal step edges
-        self.edge_spread = 0.0
+        self.edge_spread = edge_spread
         self.motion: CameraMotion | None = None
         self.latent = None
         self.finest: Level | None = None
         #: EpAlone: the share of the profiles the last estimate leaves unexplained
         #: (:meth:`~.profile_fit.RobustProfileFit.relative_misfit`)
         self.profile_misfit: float | None = None
+
+    def variant(self, info: EstimateInfo, *, scales=None, level_iters=None,
+                edge_spread: float | None = None) -> _CoarseToFine:
+        """The same problem, not yet run, recording into ``info``: on the finest of
+        ``scales`` only, say, or with another edge spread."""
+        return _CoarseToFine(
+            self.work, self.intrinsics, self.model, self.blur_work,
+            self.scales if scales is None else scales,
+            self.level_iters if level_iters is None else level_iters, self.method,
+            self.profiles, self.gain, self.lambda_w, self.lambda_ip, self.lambda_f,
+            self.preview, info,
+            edge_spread=self.edge_spread if edge_spread is None else edge_spread)
 
     def iterate(self, step: int, total: int, *, wide_start: bool = False,
                 lambda_f_factor: float = 1.0, start: CameraMotion | None = None,
@@ -600,10 +621,7 @@ def _soft_edges(run: _CoarseToFine, info: EstimateInfo, step: int, total: int):
     :data:`~.profile_fit.EP_SPREAD_TOLERANCE` times the misfit of the ideal-step fit
     ``run`` (the photo's edges are soft), else ``run``. ``info`` records the choice.
     """
-    soft = _CoarseToFine(run.work, run.intrinsics, run.model, run.blur_work, run.scales,
-                         run.level_iters, run.method, run.profiles, run.gain, run.lambda_w,
-                         run.lambda_ip, run.lambda_f, run.preview, info)
-    soft.edge_spread = EP_EDGE_SPREAD
+    soft = run.variant(info, edge_spread=EP_EDGE_SPREAD)
     yield Progress("estimate", step, total, f"EpAlone again, for soft edges "
                    f"({EP_EDGE_SPREAD:g} px spread)", n_scales=len(run.scales))
     _, _, step = yield from soft.iterate(step, total)
@@ -646,11 +664,9 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
     """
     level_iters = run.level_iters[-1]
     total += level_iters
-    second = _CoarseToFine(run.work, run.intrinsics, run.model, run.blur_work,
-                           run.scales[-1:], [level_iters], run.method, run.profiles,
-                           run.gain, run.lambda_w, run.lambda_ip, run.lambda_f, run.preview,
-                           EstimateInfo(info.method, info.model, info.max_blur,
-                                        info.focal_px, info.working_scale))
+    second = run.variant(EstimateInfo(info.method, info.model, info.max_blur, info.focal_px,
+                                      info.working_scale),
+                         scales=run.scales[-1:], level_iters=[level_iters])
     label = "second start, from the edge profiles' estimate"
     other, other_latent, step = yield from second.iterate(step, total, start=start,
                                                           label=label)
