@@ -7,13 +7,21 @@ suite's aligned PSNR (shift and in-plane rotation) and PSF NCC against the truth
 *variants* of the profile model -- module constants set for the run, nothing else:
 
 * ``committed``: the engine as it is (both models, the soft one kept within
-  ``EP_SPREAD_TOLERANCE``; refusal above ``EP_MAX_MISFIT``);
-* ``steps``: the step model only (``EP_EDGE_SPREAD = 0``), refusing above 10 % (the
-  engine before the soft-edge model);
-* ``steps-all`` / ``soft-all``: the step / the 1 px soft model alone, no refusal;
-* ``true-derivatives``: the step model on the same automatic profiles with their
-  derivatives replaced by the true PSF's projections (``metrics.true_profile_derivatives``):
-  what the solver does with faithful profiles, no refusal.
+  ``EP_SPREAD_TOLERANCE``; the width check, ``profile_fit.NARROW_PROFILE_POWER``;
+  refusal above ``EP_MAX_MISFIT``);
+* ``no-width-check``: the same without the width check (the engine before it);
+  ``width-power-1`` / ``width-power-3``: other powers of it; ``width-tol14``: with the
+  soft model kept within 1.4x the step misfit; ``width-all``: no refusal;
+* the soft-edge study's variants, all without the width check: ``steps``: the step
+  model only (``EP_EDGE_SPREAD = 0``), refusing above 10 % (the engine before the
+  soft-edge model); ``steps-all`` / ``soft-all``: the step / the 1 px soft model alone,
+  no refusal; ``true-derivatives``: the step model on the same automatic profiles with
+  their derivatives replaced by the true PSF's projections
+  (``metrics.true_profile_derivatives``): what the solver does with faithful profiles,
+  no refusal.
+
+``--method xu+ep`` scores Xu+Ep instead, whose gate and second start run EpAlone on the
+profiles (the step model; the width check).
 
 Each variant prints one line per category and one for all cases: cases run, mean gain
 over the blurred input where it ran, cases more than 0.5 dB below the input, mean PSF
@@ -23,7 +31,7 @@ after the other in one session, so their times compare). Two cases at a time
 (``--jobs``); about 2-4 min per variant on 2 cores for all 60.
 
     python benchmarks/bench_edge_spread.py [--quick] [--variants committed,steps] [--data DIR]
-                                           [--json PATH]
+                                           [--method {ep,xu+ep}] [--json PATH]
 """
 
 from __future__ import annotations
@@ -43,22 +51,31 @@ import numpy as np
 from napari_edgecme._report import markdown_table
 from napari_edgecme._suites import default_data_dir, lai_cases, lai_load
 
+#: No width check: the engine before it, and the soft-edge study's variants.
+_OFF = {"profile_fit.NARROW_PROFILE_POWER": 0.0}
 #: Module constants each variant sets (``module.NAME``: value), and whether the profiles'
 #: derivatives are replaced by the truth's projections.
 VARIANTS = {
     "committed": ({}, False),
-    "steps": ({"estimate.EP_EDGE_SPREAD": 0.0, "estimate.EP_MAX_MISFIT": 0.10}, False),
-    "steps-all": ({"estimate.EP_EDGE_SPREAD": 0.0, "estimate.EP_MAX_MISFIT": math.inf},
+    "no-width-check": (_OFF, False),
+    "width-power-1": ({"profile_fit.NARROW_PROFILE_POWER": 1.0}, False),
+    "width-power-3": ({"profile_fit.NARROW_PROFILE_POWER": 3.0}, False),
+    "width-tol14": ({"estimate.EP_SPREAD_TOLERANCE": 1.4}, False),
+    "width-all": ({"estimate.EP_MAX_MISFIT": math.inf}, False),
+    "steps": ({**_OFF, "estimate.EP_EDGE_SPREAD": 0.0, "estimate.EP_MAX_MISFIT": 0.10},
+              False),
+    "steps-all": ({**_OFF, "estimate.EP_EDGE_SPREAD": 0.0, "estimate.EP_MAX_MISFIT": math.inf},
                   False),
-    "soft-all": ({"estimate.EP_SPREAD_TOLERANCE": math.inf,
+    "soft-all": ({**_OFF, "estimate.EP_SPREAD_TOLERANCE": math.inf,
                   "estimate.EP_MAX_MISFIT": math.inf}, False),
-    "true-derivatives": ({"estimate.EP_EDGE_SPREAD": 0.0, "estimate.EP_MAX_MISFIT": math.inf},
-                         True),
+    "true-derivatives": ({**_OFF, "estimate.EP_EDGE_SPREAD": 0.0,
+                          "estimate.EP_MAX_MISFIT": math.inf}, True),
 }
 
 
-def run_case(case: dict, variant: str) -> dict:
-    """EpAlone on one case under ``variant``: a row of scores (in a worker process)."""
+def run_case(case: dict, variant: str, method: str = "ep") -> dict:
+    """``method`` (EpAlone, or Xu+Ep to see what its gate and second start make of the
+    variant) on one case under ``variant``: a row of scores (in a worker process)."""
     import importlib
 
     from napari_edgecme.core.deconv import deconvolve
@@ -85,7 +102,7 @@ def run_case(case: dict, variant: str) -> dict:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            est = estimate_motion(blurred, "ep", "rotation", case["max_blur"],
+            est = estimate_motion(blurred, method, "rotation", case["max_blur"],
                                   truth.intrinsics.focal_px, profiles=profiles, rng=0)
     except ValueError as exc:
         return {**row, "ok": False, "error": str(exc).splitlines()[0][:200]}
@@ -118,6 +135,8 @@ def main(argv=None) -> int:
     parser.add_argument("--variants", default=",".join(VARIANTS),
                         help=f"comma-separated, of {', '.join(VARIANTS)}")
     parser.add_argument("--data", default=None, help="lai folder (default: ../shared/data/lai)")
+    parser.add_argument("--method", default="ep", choices=["ep", "xu+ep"],
+                        help="the estimator scored (default: ep, EpAlone)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--json", default=None, help="write every row here")
     args = parser.parse_args(argv)
@@ -133,7 +152,8 @@ def main(argv=None) -> int:
     for variant in variants:
         t0 = time.perf_counter()
         with ProcessPoolExecutor(max(1, args.jobs)) as pool:
-            rows = list(pool.map(run_case, cases, [variant] * len(cases)))
+            rows = list(pool.map(run_case, cases, [variant] * len(cases),
+                                 [args.method] * len(cases)))
         results[variant] = rows
         ran = [r for r in rows if r["ok"]]
         times = (f"median estimation {statistics.median(r['seconds'] for r in ran):.1f} s "

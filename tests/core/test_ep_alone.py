@@ -15,7 +15,7 @@ import pytest
 from scipy import ndimage, sparse
 from test_edges import _scene, _shaken
 
-from napari_edgecme.core import estimate
+from napari_edgecme.core import estimate, profile_fit
 from napari_edgecme.core.edges import extract_edge_profiles
 from napari_edgecme.core.estimate import EP_MAX_MISFIT, estimate_motion
 from napari_edgecme.core.measurement import (
@@ -28,9 +28,12 @@ from napari_edgecme.core.metrics import motion_psf_ncc
 from napari_edgecme.core.profile_fit import (
     EP_EDGE_SPREAD,
     MISFIT_SCALE_FLOOR,
+    NARROW_PROFILE_POWER,
     PRIOR_FLOOR,
     XU_EP_GATE_MISFIT,
     RobustProfileFit,
+    _variance,
+    width_weight,
 )
 from napari_edgecme.core.profiles import EdgeProfiles
 from napari_edgecme.core.synth import make_case
@@ -155,6 +158,51 @@ def test_profiles_that_all_fit_are_not_down_weighted_for_noise(one_case_profiles
     assert MISFIT_SCALE_FLOOR > 0
 
 
+def test_a_profile_narrower_than_the_motion_predicts_loses_weight_and_a_wider_one_does_not(
+        one_case_profiles):
+    """Variances add under convolution: a faithful profile is the projection convolved
+    with the edge's own transition, so only the too-narrow side is evidence against it."""
+    _, prof, truth, M = one_case_profiles
+    predicted = (M @ truth.weights).reshape(len(prof), -1)
+    offsets = prof.offsets.astype(float)
+    wider = ndimage.gaussian_filter1d(predicted, 1.5, axis=1, mode="constant")
+    unblurred = np.tile((offsets == 0).astype(float), (len(prof), 1))
+    halfway = 0.5 * (predicted + unblurred)  # a transition cut short
+    assert np.all(width_weight(predicted, predicted, offsets) == 1.0)
+    assert np.all(width_weight(wider, predicted, offsets) == 1.0)
+    ratio = _variance(halfway, offsets) / _variance(predicted, offsets)
+    assert np.all(ratio < 1)
+    assert np.allclose(width_weight(halfway, predicted, offsets),
+                       ratio ** NARROW_PROFILE_POWER)
+    assert np.max(width_weight(unblurred, predicted, offsets)) < 0.02
+    corrupted, false = _with_false_profiles(prof, 0.2, seed=0)
+    fit = RobustProfileFit(corrupted)
+    fit.update(M, truth.weights)  # each weight: prior x Cauchy weight x width weight
+    cauchy = 1 / (1 + (fit.misfit / max(2 * np.median(fit.misfit), MISFIT_SCALE_FLOOR)) ** 2)
+    assert np.allclose(fit.weights, fit.prior * cauchy
+                       * width_weight(corrupted.derivatives, predicted, offsets))
+    assert np.max(fit.weights[false] / fit.prior[false]) < 0.02
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_width_check_holds_the_motion_against_a_third_of_unblurred_profiles(
+        seed, monkeypatch):
+    """Measured PSF NCC with 30% of the profiles unblurred (no refusal): 0.72 / 0.69 with
+    the width check, 0.34 / 0.40 without (the Cauchy weight alone needs a majority it can
+    trust; the width check does not, as an unblurred profile is narrower than any blur)."""
+    case, prof = _shaken("rotation", 11, 3)
+    corrupted, _ = _with_false_profiles(prof, 0.3, seed)
+    focal = case.motion.intrinsics.focal_px
+    monkeypatch.setattr(estimate, "EP_MAX_MISFIT", np.inf)
+    checked = estimate_motion(case.blurred, "ep", "rotation", 13, focal, profiles=corrupted,
+                              rng=0)
+    monkeypatch.setattr(profile_fit, "NARROW_PROFILE_POWER", 0.0)
+    unchecked = estimate_motion(case.blurred, "ep", "rotation", 13, focal,
+                                profiles=corrupted, rng=0)
+    assert motion_psf_ncc(checked.motion, case.motion) >= 0.65
+    assert motion_psf_ncc(unchecked.motion, case.motion) <= 0.5
+
+
 def test_the_prior_is_the_confidence_floored(one_case_profiles):
     _, prof, _, _ = one_case_profiles
     fit = RobustProfileFit(prof)
@@ -168,9 +216,9 @@ def test_the_prior_is_the_confidence_floored(one_case_profiles):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_fifth_of_unblurred_profiles_bends_the_estimate_and_the_self_check_says_so(
         seed, monkeypatch):
-    """Measured PSF NCC: clean 0.89; a fifth unblurred: 0.64 / 0.61 reweighted (0.60 / 0.61
-    with equal weights; with 30% unblurred the reweighting loses, 0.39-0.47 vs 0.51: it
-    needs a majority it can trust). The misfit goes from 0.01 to 0.37: refused."""
+    """Measured PSF NCC: clean 0.89; a fifth unblurred: 0.73 / 0.72 reweighted with the
+    width check, 0.65 / 0.64 without it (0.60 / 0.61 with equal weights). The misfit, over
+    all profiles, goes from 0.01 to 0.49: refused."""
     case, prof = _shaken("rotation", 11, 3)
     corrupted, _ = _with_false_profiles(prof, 0.2, seed)
     focal = case.motion.intrinsics.focal_px
@@ -183,7 +231,7 @@ def test_a_fifth_of_unblurred_profiles_bends_the_estimate_and_the_self_check_say
     monkeypatch.setattr(estimate, "EP_MAX_MISFIT", np.inf)  # what it would have returned
     dirty = estimate_motion(case.blurred, "ep", "rotation", 13, focal, profiles=corrupted,
                             rng=0)
-    assert motion_psf_ncc(dirty.motion, case.motion) >= 0.55
+    assert motion_psf_ncc(dirty.motion, case.motion) >= 0.68
     assert dirty.info.profile_misfit > EP_MAX_MISFIT
 
 

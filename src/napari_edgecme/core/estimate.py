@@ -392,7 +392,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 check = _CoarseToFine(work, intr_work, model, blur_work, scales, ep_iters,
                                       "ep", work_profiles, gain, lambda_w, 0.0, lambda_f,
                                       False, EstimateInfo("ep", model, max_blur,
-                                                          intr_full.focal_px, work_scale))
+                                                          intr_full.focal_px, work_scale),
+                                      width_check=False)
                 gate_motion, _, step = yield from check.iterate(step, total)
                 info.profile_misfit = check.profile_misfit
                 if info.profile_misfit > XU_EP_GATE_MISFIT:
@@ -528,7 +529,7 @@ class _CoarseToFine:
 
     def __init__(self, work, intrinsics, model, blur_work, scales, level_iters, method,
                  profiles, gain, lambda_w, lambda_ip, lambda_f, preview, info, *,
-                 edge_spread: float = 0.0):
+                 edge_spread: float = 0.0, width_check: bool = True):
         self.work, self.intrinsics, self.model = work, intrinsics, model
         self.blur_work, self.scales, self.level_iters = blur_work, scales, level_iters
         self.method, self.profiles, self.gain = method, profiles, gain
@@ -537,6 +538,9 @@ class _CoarseToFine:
         #: EpAlone: the edge spread of its profile model (px of the working copy;
         #: :data:`~.profile_fit.EP_EDGE_SPREAD`), 0 for ideal step edges
         self.edge_spread = edge_spread
+        #: EpAlone: whether profiles narrower than the estimate predicts lose weight
+        #: (:func:`~.profile_fit.width_weight`); Xu+Ep's gate runs without it
+        self.width_check = width_check
         self.motion: CameraMotion | None = None
         self.latent = None
         self.finest: Level | None = None
@@ -554,7 +558,8 @@ class _CoarseToFine:
             self.level_iters if level_iters is None else level_iters, self.method,
             self.profiles, self.gain, self.lambda_w, self.lambda_ip, self.lambda_f,
             self.preview, info,
-            edge_spread=self.edge_spread if edge_spread is None else edge_spread)
+            edge_spread=self.edge_spread if edge_spread is None else edge_spread,
+            width_check=self.width_check)
 
     def iterate(self, step: int, total: int, *, wide_start: bool = False,
                 lambda_f_factor: float = 1.0, start: CameraMotion | None = None,
@@ -573,7 +578,8 @@ class _CoarseToFine:
             ep_data = None
             if self.profiles is not None and method == "ep":  # Eq. 16, robust
                 ep_data = RobustProfileFit(self.profiles.rescaled(s) if s != 1
-                                           else self.profiles, self.edge_spread * s)
+                                           else self.profiles, self.edge_spread * s,
+                                           width_check=self.width_check)
             elif self.profiles is not None and self.lambda_ip > 0:  # Eq. 22's Eq. 19 term
                 ep_data = edge_images(level, self.profiles, s, self.gain)
             # coarse levels: sharper edges, larger weight
