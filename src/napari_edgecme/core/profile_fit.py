@@ -179,10 +179,11 @@ def width_weight(derivatives, predicted, offsets) -> np.ndarray:
 EP_MAX_MISFIT = 0.12
 
 #: Xu+Ep drops its profiles and runs as Xu when EpAlone on them (ideal step edges, no
-#: edge spread, no width check) leaves more than this unexplained (:data:`~.estimate.XU_EP_GATE`). On the
-#: 60 ``lai`` cases, counting a refusal as the input returned, EpAlone's mean PSNR was
-#: 20.29 dB without a check (blurred 20.36), 20.85 at 0.10 (38 run), 21.02 at 0.08 (27
-#: run), 20.77 at 0.06 (10 run); 0.10 keeps more profile sets for a 0.17 dB loss.
+#: edge spread, no width check) leaves more than this unexplained
+#: (:data:`~.estimate.XU_EP_GATE`). On the 60 ``lai`` cases, counting a refusal as the
+#: input returned, EpAlone's mean PSNR was 20.29 dB without a check (blurred 20.36),
+#: 20.85 at 0.10 (38 run), 21.02 at 0.08 (27 run), 20.77 at 0.06 (10 run); 0.10 keeps
+#: more profile sets for a 0.17 dB loss.
 XU_EP_GATE_MISFIT = 0.10
 
 #: The sharp photo's edges are rarely ideal steps, and sampling a profile between pixels
