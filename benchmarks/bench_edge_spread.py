@@ -20,8 +20,10 @@ suite's aligned PSNR (shift and in-plane rotation) and PSF NCC against the truth
   (``metrics.true_profile_derivatives``): what the solver does with faithful profiles,
   no refusal.
 
-``--method xu+ep`` scores Xu+Ep instead, whose gate and second start run EpAlone on the
-profiles (the step model; the width check).
+``--method xu+ep`` scores Xu+Ep instead. Its gate runs EpAlone with the step model and
+without the width check, so of these variants only ``true-derivatives`` changes it; the
+Xu+Ep figures with the check in the gate (``edge-spread-width-xuep-quick.json``) were
+made with a temporary patch that turned it on there.
 
 Each variant prints one line per category and one for all cases: cases run, mean gain
 over the blurred input where it ran, cases more than 0.5 dB below the input, mean PSF
@@ -74,8 +76,8 @@ VARIANTS = {
 
 
 def run_case(case: dict, variant: str, method: str = "ep") -> dict:
-    """``method`` (EpAlone, or Xu+Ep to see what its gate and second start make of the
-    variant) on one case under ``variant``: a row of scores (in a worker process)."""
+    """``method`` (EpAlone, or Xu+Ep: see the module docstring) on one case under
+    ``variant``: a row of scores (in a worker process)."""
     import importlib
 
     from napari_edgecme.core.deconv import deconvolve

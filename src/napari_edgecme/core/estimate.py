@@ -16,7 +16,8 @@ pyramid with ratio ``1/sqrt(2)``):
   paper solves the image-domain Eq. 19 instead, for speed; the direct form is cheaper
   here, uses the profiles' averaged derivatives rather than single-pixel gradients, and
   takes a weight ``c_i`` per profile: its confidence times its agreement with the
-  current estimate, updated after every MDF update (:mod:`~.profile_fit`). On the 20
+  current estimate and a width check against it, updated after every MDF update
+  (:mod:`~.profile_fit`). On the 20
   cases of the ``lai`` quick set the mean PSF NCC against the truth went from 0.543
   (Eq. 19) to 0.601, and the estimate takes 3 s instead of 23 s. EpAlone fits the
   profiles twice, as ideal steps and as soft edges (:data:`~.profile_fit.EP_EDGE_SPREAD`),
@@ -602,7 +603,7 @@ class _CoarseToFine:
                                     self.lambda_w, self.lambda_ip, method,
                                     salient=_SALIENT_START * 1.1 ** min(it, 24)),
                     Progress("estimate", step, total, f"{where}: camera motion", **at))
-                if method == "ep":  # IRLS: each profile weighed by its agreement
+                if method == "ep":  # IRLS: each profile weighed by its agreement and width
                     ep_data.update(level.cache["measurement"], weights[active])
                     self.profile_misfit = ep_data.relative_misfit()
                 self.motion = level.motion(weights)
