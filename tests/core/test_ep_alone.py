@@ -32,7 +32,6 @@ from napari_edgecme.core.profile_fit import (
     PRIOR_FLOOR,
     XU_EP_GATE_MISFIT,
     RobustProfileFit,
-    _variance,
     width_weight,
 )
 from napari_edgecme.core.profiles import EdgeProfiles
@@ -170,7 +169,11 @@ def test_a_profile_narrower_than_the_motion_predicts_loses_weight_and_a_wider_on
     halfway = 0.5 * (predicted + unblurred)  # a transition cut short
     assert np.all(width_weight(predicted, predicted, offsets) == 1.0)
     assert np.all(width_weight(wider, predicted, offsets) == 1.0)
-    ratio = _variance(halfway, offsets) / _variance(predicted, offsets)
+    def variance(rows):  # each row as a mass distribution over the offsets
+        mean = rows @ offsets / rows.sum(1)
+        return ((offsets - mean[:, None]) ** 2 * rows).sum(1) / rows.sum(1)
+
+    ratio = variance(halfway) / variance(predicted)
     assert np.all(ratio < 1)
     assert np.allclose(width_weight(halfway, predicted, offsets),
                        ratio ** NARROW_PROFILE_POWER)
