@@ -32,7 +32,13 @@ def block_peak(motion, side: int, method: str, solver: str, border_iterations: i
     those of the Fourier methods' border correction (memory does not depend on it).
     Returns ``(peak, domain)``, the domain for its operator's figures.
     """
-    from ..core.deconv_blocks import auto_stride, fourier_margin, latent_pad, psf_extent
+    from ..core.deconv_blocks import (
+        auto_stride,
+        fourier_border_reach,
+        fourier_margin,
+        latent_pad,
+        psf_extent,
+    )
     from ..core.deconv_solvers import (
         LatentDomain,
         PatchFourier,
@@ -49,7 +55,8 @@ def block_peak(motion, side: int, method: str, solver: str, border_iterations: i
         domain = LatentDomain(motion, (0, side, 0, side), latent_pad(K), auto_stride(motion))
         fourier = None
         if method == "wiener" or solver == "fourier":
-            fourier = PatchFourier(domain, margin=fourier_margin(K))
+            fourier = PatchFourier(domain, margin=fourier_margin(K),
+                                   border_reach=fourier_border_reach(K))
         if method == "hyperlaplacian":
             steps = hyperlaplacian_steps(domain, g, lam=1500.0, alpha=2 / 3, betas=[1.0],
                                          inner_iterations=1, solver=solver, fourier=fourier,

@@ -12,14 +12,15 @@ import numpy as np
 import scipy.fft as sfft
 
 from ._validation import float_dtype
-from .deconv_solvers import _CHUNK_BYTES
+from .deconv_solvers import _CHUNK_BYTES, border_tiles
 from .motion import CameraMotion, psf_size_for
 from .operators import PatchGrid
 
-__all__ = ["BLOCK_MEMORY_BUDGET", "FOURIER_MARGIN", "MAX_BLOCK", "MAX_STRIDE", "MIN_BLOCK",
-           "MIN_STRIDE", "PSF_DRIFT", "BlockPlan", "auto_block_size", "auto_stride",
-           "block_margin", "block_memory", "block_memory_phases", "fourier_margin",
-           "latent_pad", "psf_drift_rate", "psf_extent"]
+__all__ = ["BLOCK_MEMORY_BUDGET", "FOURIER_BORDER_REACH", "FOURIER_MARGIN", "MAX_BLOCK",
+           "MAX_STRIDE", "MIN_BLOCK", "MIN_STRIDE", "PSF_DRIFT", "BlockPlan", "auto_block_size",
+           "auto_stride", "block_margin", "block_memory", "block_memory_phases",
+           "fourier_border_reach", "fourier_margin", "latent_pad", "psf_drift_rate",
+           "psf_extent"]
 
 #: Smallest accepted block size (pixels).
 MIN_BLOCK = 64
@@ -49,6 +50,11 @@ MAX_STRIDE = 256
 
 #: Patch-wise Fourier solver: box margin beyond each EFF window, in PSF sizes.
 FOURIER_MARGIN = 1.0
+
+#: Patch-wise Fourier solver: a tile whose window comes within this many PSF sizes of
+#: an image edge is a border tile (masked problem, solved by CG); None: every tile whose
+#: box reaches beyond the edge.
+FOURIER_BORDER_REACH = None
 
 
 def psf_extent(motion: CameraMotion, beyond: float = 0.0) -> int:
@@ -102,13 +108,12 @@ def fourier_margin(psf_size: int) -> int:
     return max(8, round(FOURIER_MARGIN * psf_size))
 
 
-def _border_rows(counts, stride, box, lead, inner_start, inner_len, edges):
-    """Per tile index along one axis: does its Fourier box reach beyond an image edge of
-    the observed rectangle (``PatchFourier.border``'s rule)?"""
-    starts = np.arange(counts) * stride
-    before = (starts < lead + inner_start) & edges[0]
-    after = (starts + box > lead + inner_start + inner_len) & edges[1]
-    return before | after
+def fourier_border_reach(psf_size: int) -> int | None:
+    """How near an image edge an EFF window must come for its tile to be a border tile
+    of the patch-wise Fourier solver (px; None: the whole box margin)."""
+    if FOURIER_BORDER_REACH is None:
+        return None
+    return round(FOURIER_BORDER_REACH * psf_size)
 
 
 def block_memory_phases(box_shape, psf_size: int, stride: int, *,
@@ -199,8 +204,11 @@ def block_memory_phases(box_shape, psf_size: int, stride: int, *,
         lead = tuple(o // 2 + mm for o, mm in zip(g.overlap, margin, strict=True))
         canvas = int(np.prod([max(lead[a] + N[a], (g.counts[a] - 1) * g.stride[a] + B[a])
                               for a in range(2)]))
-        rows = _border_rows(g.counts[0], g.stride[0], B[0], lead[0], pad, h, image_edges[:2])
-        cols = _border_rows(g.counts[1], g.stride[1], B[1], lead[1], pad, w, image_edges[2:])
+        reach = fourier_border_reach(K)
+        rows = border_tiles(g.counts[0], g.stride[0], B[0], P[0], lead[0],
+                            slice(pad, pad + h), image_edges[:2], reach)
+        cols = border_tiles(g.counts[1], g.stride[1], B[1], P[1], lead[1],
+                            slice(pad, pad + w), image_edges[2:], reach)
         border = rows[:, None] | cols[None, :]
         nb = int(border.sum())
         per_chunk = max(1, _CHUNK_BYTES // (B[0] * (B[1] // 2 + 1) * 16))

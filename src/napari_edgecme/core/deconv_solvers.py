@@ -145,6 +145,29 @@ def _rv(spec: np.ndarray) -> np.ndarray:
     return spec.view(spec.real.dtype)
 
 
+def border_tiles(counts: int, stride: int, box: int, patch: int, lead: int, inner: slice,
+                 edges: tuple[bool, bool], reach: int | None = None) -> np.ndarray:
+    """Which tiles along one axis are *border tiles* of :class:`PatchFourier`, (counts,) bool.
+
+    Tile ``i``'s box spans canvas ``[i stride, i stride + box)`` and its window of
+    ``patch`` px sits in it with ``(box - patch) // 2`` px before it (the rest after);
+    the observed rectangle spans canvas ``lead + inner``. A tile is a border tile when
+    its window comes within ``reach`` px of a side of the observed rectangle that is an
+    image edge (``edges``: before, after). ``reach`` is capped at the box margin on
+    that side; None means the whole margin: every box that reaches beyond the edge.
+    """
+    starts = np.arange(counts) * stride
+    first, stop = lead + inner.start, lead + inner.stop
+    before_margin = (box - patch) // 2
+    after_margin = box - patch - before_margin
+    before_reach = before_margin if reach is None else min(int(reach), before_margin)
+    after_reach = after_margin if reach is None else min(int(reach), after_margin)
+    window = starts + before_margin
+    before = (window - before_reach < first) & bool(edges[0])
+    after = (window + patch + after_reach > stop) & bool(edges[1])
+    return before | after
+
+
 class PatchFourier:
     r"""Closed-form image step per EFF tile, blended by the EFF windows.
 
@@ -180,11 +203,15 @@ class PatchFourier:
     domain : LatentDomain
     margin : int
         Minimum box margin beyond each window (about one PSF size).
+    border_reach : int or None, default None
+        A tile is a border tile when its window comes within this many pixels of an
+        image edge (:func:`border_tiles`); None: when its box reaches beyond the edge.
     build : bool, default True
         Compute the tile spectra now; with False, run :meth:`iter_build` before use.
     """
 
-    def __init__(self, domain: LatentDomain, margin: int, *, build: bool = True):
+    def __init__(self, domain: LatentDomain, margin: int, *, border_reach: int | None = None,
+                 build: bool = True):
         self.domain = domain
         op = domain.op
         grid = op.grid
@@ -218,18 +245,15 @@ class PatchFourier:
                        self.lead[1] + inner[1].start:self.lead[1] + inner[1].stop] = True
         self._interior = np.zeros(self.box, bool)
         self._interior[h:B0 - h, h:B1 - h] = True
-        #: border tiles: boxes that reach beyond an image edge of the observed rectangle
+        #: border tiles (:func:`border_tiles`): their masked problems are solved by CG
         #: (cuts between blocks lie at least two PSF sizes from the kept region, so the
         #: cheap closed form is enough there)
-        beyond = np.zeros(self.canvas, bool)
         top, bottom, left, right = domain.image_edges
-        r0, r1 = self.lead[0] + inner[0].start, self.lead[0] + inner[0].stop
-        c0, c1 = self.lead[1] + inner[1].start, self.lead[1] + inner[1].stop
-        beyond[:r0] |= top
-        beyond[r1:] |= bottom
-        beyond[:, :c0] |= left
-        beyond[:, c1:] |= right
-        self.border = self._boxes(beyond).any(axis=(2, 3)).ravel()
+        rows = border_tiles(self.counts[0], self.stride[0], B0, P[0], self.lead[0], inner[0],
+                            (top, bottom), border_reach)
+        cols = border_tiles(self.counts[1], self.stride[1], B1, P[1], self.lead[1], inner[1],
+                            (left, right), border_reach)
+        self.border = (rows[:, None] | cols[None, :]).ravel()
         self._border_pos = np.cumsum(self.border) - 1
         # Parseval weights of a real FFT's half spectrum along the last axis (for _rv)
         half = np.full(B1 // 2 + 1, 2.0)
