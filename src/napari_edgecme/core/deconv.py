@@ -103,7 +103,9 @@ record comes before each block's blur operator is built, after each chunk of til
 a million pixels of the w-step, and after each half-quadratic step -- a few tenths
 of a second of work apart at most, whatever the image size -- and a stop at any of
 them returns at once. RGB images are deconvolved channel by channel with one motion
-(the operator and tile spectra are built once per block).
+(the operator and tile spectra are built once per block); with ``color="opponent"``
+the hyper-Laplacian solves the luminance and two chroma axes instead
+(:func:`opponent_data_weights`), the chroma at half resolution if asked.
 
 References
 ----------
@@ -327,7 +329,7 @@ def iter_deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian",
                     solver: str = "fourier", cg_iterations: int = 10, cg_tol: float = 1e-4,
                     border_iterations: int = FOURIER_BORDER_ITERATIONS["hyperlaplacian"],
                     color: str = "rgb", chroma: str = "auto", iterations: int = 30,
-               nsr: float = 1e-2, block_size: int | None = None,
+                    nsr: float = 1e-2, block_size: int | None = None,
                     stride: int | None = None, preview: bool = False,
                     lam: float = NOT_GIVEN) -> Generator[Progress, None, np.ndarray]:
     """:func:`deconvolve` as a generator: yields progress records, returns the image.
@@ -555,16 +557,9 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict, lams=No
         lams = [opts.get("lam")] * nc
     K = psf_extent(motion)
     pad = latent_pad(K)  # latent pixels beyond the observed box: the PSF reach + slack
-    stride = opts["stride"] if opts["stride"] is not None else auto_stride(motion)
     use_fourier = method == "wiener" or (method == "hyperlaplacian"
                                          and opts["solver"] == "fourier")
-    block_size = opts["block_size"]
-    chosen = ""  # how the block size was chosen, for the first record
-    if block_size is None:
-        block_size = auto_block_size((H, W), motion, stride, method=method,
-                                     solver=opts.get("solver", "fourier"), dtype=dtype)
-        chosen = f" (blocks of {block_size} px, from the memory budget)"
-    plan = BlockPlan((H, W), block_size, K)
+    stride, plan, chosen = _block_plan((H, W), motion, method, opts, dtype)
     nb = len(plan)
     per, start = _block_solver(method, opts)
     total = nb * nc * per
@@ -688,7 +683,7 @@ OPPONENT_OFFSET = np.array([0.0, 0.5, 0.5])
 #: 3000 x 2000). Below it, half-resolution chroma lost 0.5 dB against full resolution on
 #: 20 ``lai`` photos at 640 px (the oracle deconvolution); camera files above it carry
 #: chroma at about half resolution anyway (a Bayer mosaic; JPEG's 4:2:0), and there it
-#: halves the time (module notes, *Colour*).
+#: halved the time of a 12 MP deconvolution (true motion; not yet the default path).
 HALF_CHROMA_PIXELS = 6_000_000
 
 
@@ -787,7 +782,7 @@ def _run_opponent(img: np.ndarray, motion: CameraMotion, method: str, opts: dict
         chroma_img = half_size(chroma)
         chroma_motion = motion.rescale(chroma_img.shape[:2])
     parts = [  # image, motion, data weights, record names
-        (luminance, motion, weights[:1], None),
+        (luminance, motion, weights[:1], ["luminance"]),
         (chroma_img, chroma_motion, weights[1:],
          ["chroma 1/2" + (" (half resolution)" if half else ""),
           "chroma 2/2" + (" (half resolution)" if half else "")])]
@@ -803,13 +798,12 @@ def _run_opponent(img: np.ndarray, motion: CameraMotion, method: str, opts: dict
         return x
 
     def rgb():
-        return _clipped(from_opponent(np.concatenate(current, axis=-1)).astype(img.dtype))
+        return _clipped(from_opponent(np.concatenate(current, axis=-1)))
 
     done = last = 0
     stopped = False
     for i, (part, part_motion, lams, names) in enumerate(parts):
-        inner = _run(part, part_motion, method, opts, lams=lams,
-                     channel_names=names or ["luminance"])
+        inner = _run(part, part_motion, method, opts, lams=lams, channel_names=names)
         while True:
             try:
                 record = next(inner)
@@ -849,16 +843,23 @@ def _run_opponent(img: np.ndarray, motion: CameraMotion, method: str, opts: dict
     return res
 
 
-def _steps(img: np.ndarray, motion, method, opts) -> int:
-    """The iterations :func:`_run` counts for ``img`` (its ``total``)."""
+def _block_plan(shape, motion, method, opts, dtype):
+    """``(stride, BlockPlan, how the block size was chosen)`` of :func:`_run`."""
     stride = opts["stride"] if opts["stride"] is not None else auto_stride(motion)
     block_size = opts["block_size"]
+    chosen = ""  # how the block size was chosen, for the first record
     if block_size is None:
-        block_size = auto_block_size(img.shape[:2], motion, stride, method=method,
-                                     solver=opts.get("solver", "fourier"), dtype=img.dtype)
-    per, _ = _block_solver(method, opts)
+        block_size = auto_block_size(shape, motion, stride, method=method,
+                                     solver=opts.get("solver", "fourier"), dtype=dtype)
+        chosen = f" (blocks of {block_size} px, from the memory budget)"
+    return stride, BlockPlan(shape, block_size, psf_extent(motion)), chosen
+
+
+def _steps(img: np.ndarray, motion, method, opts) -> int:
+    """The iterations :func:`_run` counts for ``img`` (its ``total``)."""
+    _, plan, _ = _block_plan(img.shape[:2], motion, method, opts, img.dtype)
     channels = 1 if img.ndim == 2 else img.shape[2]
-    return len(BlockPlan(img.shape[:2], block_size, psf_extent(motion))) * channels * per
+    return len(plan) * channels * _block_solver(method, opts)[0]
 
 
 def _clipped(res: np.ndarray) -> np.ndarray:
