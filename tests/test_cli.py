@@ -281,6 +281,30 @@ def test_batch_lam_reaches_each_photos_deconvolution_as_lambda_f():
         assert deconvolution_params(options, "hyperlaplacian") == {"lambda_f": 2.0 / 3000.0}
 
 
+@pytest.mark.parametrize("command", ["deblur", "batch", "deconvolve"])
+def test_colour_options_reach_the_deconvolution_of_every_command_that_deconvolves(command):
+    from napari_edgecme.batch._run import batch_options
+    from napari_edgecme.cli import build_parser
+    from napari_edgecme.cli._options import deconvolution_params
+
+    required = {"deblur": ["x.png", "-o", "o.png"], "batch": ["x.png", "-o", "out"],
+                "deconvolve": ["x.png", "--motion", "m.json", "-o", "o.png"]}[command]
+    args = build_parser().parse_args([command, *required, "--color", "opponent",
+                                      "--chroma", "half"])
+    handed = deconvolution_params(args, "hyperlaplacian")
+    assert handed == {"color": "opponent", "chroma": "half"}
+    # a batch hands them on to each photo's deconvolution unchanged
+    options = batch_options("xu", "inplane", None, None, "hyperlaplacian", handed, {})
+    assert deconvolution_params(options, "hyperlaplacian") == handed
+
+
+def test_a_batch_refuses_deconvolution_parameters_it_cannot_hand_on():
+    from napari_edgecme.batch._run import batch_options
+
+    with pytest.raises(ValueError, match="'alpha' is not an option of a batch"):
+        batch_options("xu", "inplane", None, None, "hyperlaplacian", {"alpha": 0.5}, {})
+
+
 @pytest.mark.parametrize("command", ["estimate", "deblur", "batch", "deconvolve"])
 def test_gamma_is_an_option_of_every_command_that_reads_a_photo(command):
     from napari_edgecme.cli import build_parser
@@ -563,6 +587,13 @@ BAD = {
     "option of another method": (["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
                                   "out.png", "--iterations", "5"],
                                  "--iterations does not apply to the 'hyperlaplacian'"),
+    "colour option of another method": (["deconvolve", "blurred.png", "--motion", "truth.json",
+                                         "-o", "out.png", "--deconvolution", "wiener", "--color",
+                                         "opponent"],
+                                        "--color does not apply to the 'wiener'"),
+    "half chroma of RGB channels": (["deconvolve", "blurred.png", "--motion", "truth.json",
+                                     "-o", "out.png", "--color", "rgb", "--chroma", "half"],
+                                    "chroma='half' needs color='opponent'"),
     "EpAlone without edges": (["estimate", "flat.png", "-o", "out.json", "--method", "ep",
                                "--max-blur", "9"], "EpAlone needs at least"),
     "missing required option": (["synth", "sharp.png", "-o", "out.png"],

@@ -39,13 +39,26 @@ def test_defaults_are_the_engines(setup):
     assert w.parameters() == {"lambda_f": pytest.approx(DEFAULTS["hyperlaplacian"]["lambda_f"],
                                                            rel=1e-4),
                               "alpha": pytest.approx(DEFAULTS["hyperlaplacian"]["alpha"]),
-                              "solver": DEFAULTS["hyperlaplacian"]["solver"]}
+                              "solver": DEFAULTS["hyperlaplacian"]["solver"],
+                              "color": DEFAULTS["hyperlaplacian"]["color"],
+                              "chroma": DEFAULTS["hyperlaplacian"]["chroma"]}
     assert w.motion_combo.value is setup.image  # the image's own (true) motion
     w.method_combo.value = "rl"
     assert w.parameters() == {"iterations": DEFAULTS["rl"]["iterations"]}
     assert w.params.currentIndex() == 1
     w.method_combo.value = "wiener"
     assert w.parameters() == {"nsr": pytest.approx(DEFAULTS["wiener"]["nsr"])}
+
+
+def test_the_chroma_choice_applies_to_luminance_plus_chroma_only(setup):
+    w = setup.widget
+    w.color_combo.value = "rgb"
+    assert not w.chroma_combo.native.isEnabled()
+    w.chroma_combo.value = "half"  # set while disabled: not passed with color='rgb'
+    assert w.parameters()["chroma"] == DEFAULTS["hyperlaplacian"]["chroma"]
+    w.color_combo.value = "opponent"
+    assert w.chroma_combo.native.isEnabled()
+    assert (w.parameters()["color"], w.parameters()["chroma"]) == ("opponent", "half")
 
 
 def test_deblurring_with_the_true_motion_adds_a_restored_float32_layer(setup, wait_for_run,

@@ -49,7 +49,7 @@ from qtpy.QtWidgets import (
 )
 
 from ..core._validation import first_line
-from ..core.deconv import DEFAULTS
+from ..core.deconv import DEFAULTS, HALF_CHROMA_PIXELS
 from ..core.motion import CameraMotion
 from ._dock import dock_layout
 from ._gamma import GIVEN, GammaControl, deconvolve_in_linear_light, gamma_note
@@ -252,6 +252,25 @@ class DeconvolutionWidget(QWidget):
         self.solver_combo.native.setToolTip("Fourier on overlapping tiles (fast, the "
                                             "default) or conjugate gradients with the exact "
                                             "spatially varying blur (slow)")
+        self.color_combo = ComboBox(choices=[("R, G, B each", "rgb"),
+                                             ("luminance + chroma", "opponent")],
+                                    value=hl["color"])
+        self.color_combo.native.setToolTip(
+            "Colour photos: deblur R, G and B each on its own, or deblur the luminance "
+            "(the channels' mean, weighted by how correlated their noise is) and two "
+            "colour-difference axes: less colour noise where the channels' noise is "
+            "independent")
+        self.chroma_combo = ComboBox(choices=[("auto (half from "
+                                              f"{HALF_CHROMA_PIXELS / 1e6:g} MP)", "auto"),
+                                              ("full resolution", "full"),
+                                              ("half resolution (faster)", "half")],
+                                     value=hl["chroma"])
+        self.chroma_combo.native.setToolTip(
+            "Luminance + chroma: the colour-difference axes at full or half resolution "
+            "(half: about half the time; colour detail is finer than the eye resolves "
+            "on large photos)")
+        self.color_combo.changed.connect(self._sync_chroma)
+        self._sync_chroma()
         self.rl_iterations = QSpinBox()
         self.rl_iterations.setRange(1, 100000)
         self.rl_iterations.setValue(DEFAULTS["rl"]["iterations"])
@@ -266,7 +285,9 @@ class DeconvolutionWidget(QWidget):
         self.params = QStackedWidget()
         for rows in ([("smoothness (λ_f)", self.lambda_f), ("prior exponent (α)",
                                                       self.alpha_combo.native),
-                      ("solver", self.solver_combo.native)],
+                      ("solver", self.solver_combo.native),
+                      ("colour", self.color_combo.native),
+                      ("chroma", self.chroma_combo.native)],
                      [("iterations", self.rl_iterations)],
                      [("noise/signal", self.nsr)]):
             page = QWidget()
@@ -419,13 +440,20 @@ class DeconvolutionWidget(QWidget):
                   "image)")
         return motion
 
+    def _sync_chroma(self, *_) -> None:
+        """The chroma choice applies to luminance + chroma only."""
+        self.chroma_combo.native.setEnabled(self.color_combo.value == "opponent")
+
     def parameters(self) -> dict:
         """The chosen method's parameters, as :func:`iter_deconvolve` takes them."""
         method = self.method_combo.value
         if method == "hyperlaplacian":
             return {"lambda_f": float(self.lambda_f.value()),
                     "alpha": float(self.alpha_combo.value),
-                    "solver": self.solver_combo.value}
+                    "solver": self.solver_combo.value,
+                    "color": self.color_combo.value,
+                    "chroma": (self.chroma_combo.value if self.color_combo.value == "opponent"
+                               else DEFAULTS["hyperlaplacian"]["chroma"])}
         if method == "rl":
             return {"iterations": int(self.rl_iterations.value())}
         return {"nsr": float(self.nsr.value())}

@@ -93,8 +93,9 @@ def deblur_many(paths, out_dir, method: str = "xu+ep", model: str = "rotation",
         default each photo's EXIF, else the 35 mm-equivalent default).
     deconvolution : {"hyperlaplacian", "rl", "wiener"}
     deconv_params : dict, optional
-        ``lambda_f``, ``iterations`` or ``nsr`` of the deconvolution (``lam``, deprecated:
-        ``lambda_f = 2 / lam``).
+        ``lambda_f``, ``color``, ``chroma`` (hyperlaplacian), ``iterations`` (rl) or
+        ``nsr`` (wiener) of the deconvolution, as ``edgecme batch`` takes them (``lam``,
+        deprecated: ``lambda_f = 2 / lam``); other parameters are refused.
     gamma : {"auto", "linear", "srgb"}, float or Gamma
         Each photo's transfer curve, as ``edgecme deblur --gamma``: the motion is
         estimated and the photo deconvolved in linear light and the output re-encoded as

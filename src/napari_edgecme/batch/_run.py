@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..cli._console import oserror_message
-from ..cli._options import deconvolution_params
+from ..cli._options import DECONVOLUTION_OPTIONS, deconvolution_params
 from ..core._validation import first_line
 from ..core.camera import MODELS
 from ..core.progress import Progress
@@ -47,13 +47,17 @@ def batch_options(method, model, max_blur, focal_px, deconvolution, deconv_param
     handed = dict(deconv_params or {})
     if "lambda_f" in handed:  # the per-photo options speak the CLI's --lam (= 2 / lambda_f)
         handed["lam"] = 2.0 / handed.pop("lambda_f")
+    others = sorted(set(handed) - set(DECONVOLUTION_OPTIONS))
+    if others:  # each photo runs as 'edgecme deblur' does: with its options only
+        raise ValueError(f"deconvolution parameter {others[0]!r} is not an option of a batch; "
+                         "it takes lambda_f, " + ", ".join(DECONVOLUTION_OPTIONS[1:]))
     options = argparse.Namespace(
         gamma=parse_gamma(gamma),
         method=check_choice(method, "method", _estimate.METHODS),
         model=check_choice(model, "model", MODELS), max_blur=max_blur,
         focal_px=focal_px, seed=int(seed), profiles=None, deconvolution=deconvolution,
         **{name: params.get(name) for name in ESTIMATION_PARAMS},
-        **{name: handed.get(name) for name in ("lam", "iterations", "nsr")})
+        **{name: handed.get(name) for name in DECONVOLUTION_OPTIONS})
     deconvolution_params(options, deconvolution)
     return options
 

@@ -60,13 +60,17 @@ def _estimation_params(args) -> dict:
     return params
 
 
+#: The deconvolution's parameters that are options of the command line (``--NAME``).
+DECONVOLUTION_OPTIONS = ("lam", "iterations", "nsr", "color", "chroma")
+
+
 def deconvolution_params(args, method: str) -> dict:
     params = {}
-    for name in ("lam", "iterations", "nsr"):
+    for name in DECONVOLUTION_OPTIONS:
         value = getattr(args, name, None)
         if value is not None:
             params[name] = value
-    option = {"lam": "--lam", "iterations": "--iterations", "nsr": "--nsr"}
+    option = {name: f"--{name}" for name in params}
     allowed = _deconv.DEFAULTS[method]
     for name in params:
         if name not in allowed:

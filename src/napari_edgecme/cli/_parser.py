@@ -121,6 +121,15 @@ def _add_deconvolution(parser) -> None:
                        help=f"rl: Richardson-Lucy iterations (default {d['rl']['iterations']})")
     group.add_argument("--nsr", type=_number(), metavar="R",
                        help=f"wiener: noise-to-signal ratio (default {d['wiener']['nsr']:g})")
+    group.add_argument("--color", choices=("rgb", "opponent"),
+                       help="hyperlaplacian, RGB photos: rgb solves R, G and B independently; "
+                            "opponent solves the luminance (weighted by the measured "
+                            "inter-channel noise correlation) and two chroma axes "
+                            f"(default {d['hyperlaplacian']['color']})")
+    group.add_argument("--chroma", choices=("auto", "full", "half"),
+                       help="hyperlaplacian with --color opponent: the chroma at full or half "
+                            f"resolution; auto: half from {_deconv.HALF_CHROMA_PIXELS / 1e6:g} MP "
+                            f"up (default {d['hyperlaplacian']['chroma']})")
 
 
 def _add_gamma(parser) -> None:
