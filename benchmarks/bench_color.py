@@ -116,7 +116,7 @@ def real_photo(photo: dict, sheets: Path) -> dict:
     from napari_edgecme.core.deconv import deconvolve
     from napari_edgecme.core.photometry import channel_noise_correlation, decide_gamma
 
-    image = read_rgb(photo["input"]).astype(np.float32) / 255.0
+    image = read_rgb(photo["input"])
     curve, reason = decide_gamma(photo["input"])
     t0 = time.perf_counter()
     restored_rgb, estimate = deblur(image, gamma=curve)
@@ -135,8 +135,8 @@ def real_photo(photo: dict, sheets: Path) -> dict:
     var = uniform_filter(gray ** 2, 15) - uniform_filter(gray, 15) ** 2
     mask = var <= np.quantile(var, 0.25)
     base = _chroma_noise(image, mask)
-    for key, img in results.items():
-        out[f"{key}_chroma_noise"] = _chroma_noise(img, mask) / base
+    for key, img in results.items():  # None for a gray photo (no chroma at all)
+        out[f"{key}_chroma_noise"] = _chroma_noise(img, mask) / base if base > 0 else None
     crops = choose_crops(image, 2)
     make_sheet([("blurred", image), *[(f"Xu+Ep, color {k}", v) for k, v in results.items()]],
                sheets / f"{photo['name']}.png", crops=crops,

@@ -274,8 +274,12 @@ def test_luminance_weight_follows_the_noise_correlation():
     lam, alpha = 1500.0, 2 / 3
     independent = deconv.opponent_data_weights(lam, alpha, 0.0)
     shared = deconv.opponent_data_weights(lam, alpha, 1.0)
-    # the mean of three independent noisy copies has a third of the noise variance
-    assert independent[0] == pytest.approx(3 * lam) and shared[0] == pytest.approx(lam)
+    # the mean of three independent noisy copies has a third of the noise variance,
+    # worth 3^(1 - alpha/2) in weight (the objective's scaling); shared noise: none
+    assert independent[0] == pytest.approx(3 ** (1 - alpha / 2) * lam)
+    assert shared[0] == pytest.approx(lam)
+    half = deconv.opponent_data_weights(lam, alpha, 0.5)[0]
+    assert shared[0] < half < independent[0]
     # chroma: the RGB weight in the orthonormal basis, whatever the noise
     assert shared[1:] == pytest.approx(independent[1:])
     for w, scale in zip(independent[1:], deconv.OPPONENT_SCALE[1:], strict=True):
@@ -574,7 +578,7 @@ BAD = [
     ({"color": "cmyk"}, "color must be one of"),
     ({"chroma": "quarter"}, "chroma must be one of"),
     ({"color": "rgb", "chroma": "half"}, "chroma='half' needs color='opponent'"),
-    ({"method": "rl", "color": "opponent"}, "parameter 'color' does not apply to method 'rl'"),
+    ({"method": "rl", "color": "rgb"}, "parameter 'color' does not apply to method 'rl'"),
     ({"motion": "shaky"}, "motion must be a CameraMotion"),
 ]
 

@@ -104,9 +104,13 @@ def test_the_w_step_yields_a_record_per_slab(rgb_case, monkeypatch):
     np.testing.assert_array_equal(x_many, x_one)  # elementwise: the same numbers
 
 
-def test_deconvolve_says_so_before_building_each_blocks_operator(rgb_case, work_counter):
+@pytest.mark.parametrize("color, parts", [("rgb", 1), ("opponent", 2)])
+def test_deconvolve_says_so_before_building_each_blocks_operator(rgb_case, work_counter, color,
+                                                                 parts):
+    """Each block's operator is built once per part (RGB: for the three channels; the
+    opponent basis: for the luminance, then for the two chroma axes)."""
     blurred, motion = rgb_case
-    gen = iter_deconvolve(blurred, motion, block_size=96)
+    gen = iter_deconvolve(blurred, motion, block_size=96, color=color, chroma="full")
     first = next(gen)
     assert "building the blur operator" in first.message
     assert work_counter == {"fft": 0, "domains": 0}  # nothing built before the first record
@@ -118,9 +122,9 @@ def test_deconvolve_says_so_before_building_each_blocks_operator(rgb_case, work_
     gen.close()
     announcing = [i for i, r in enumerate(records) if "building the blur operator" in r.message]
     n_blocks = len(deconv.BlockPlan(blurred.shape[:2], 96, deconv.psf_extent(motion)))
-    assert n_blocks > 1 and len(announcing) == n_blocks
+    assert n_blocks > 1 and len(announcing) == parts * n_blocks
     # each announcement comes before its block's operator is built
-    assert [built[i - 1] if i else 0 for i in announcing] == list(range(n_blocks))
+    assert [built[i - 1] if i else 0 for i in announcing] == list(range(parts * n_blocks))
 
 
 # ---------------------------------------------------------------------------------------
@@ -220,7 +224,7 @@ def test_edge_profiles_come_with_records_and_the_same_profiles():
 
 def test_rgb_is_assembled_in_place_as_three_gray_deconvolutions(rgb_case):
     blurred, motion = rgb_case
-    rgb = deconvolve(blurred, motion, block_size=96)
+    rgb = deconvolve(blurred, motion, block_size=96, color="rgb")
     assert rgb.flags["C_CONTIGUOUS"] and rgb.dtype == np.float32
     assert rgb.min() >= 0 and rgb.max() <= 1
     for c in range(3):

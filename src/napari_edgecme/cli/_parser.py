@@ -121,7 +121,7 @@ def _add_deconvolution(parser) -> None:
                        help=f"rl: Richardson-Lucy iterations (default {d['rl']['iterations']})")
     group.add_argument("--nsr", type=_number(), metavar="R",
                        help=f"wiener: noise-to-signal ratio (default {d['wiener']['nsr']:g})")
-    group.add_argument("--color", choices=("rgb", "opponent"),
+    group.add_argument("--color", choices=("opponent", "rgb"),
                        help="hyperlaplacian, RGB photos: rgb solves R, G and B independently; "
                             "opponent solves the luminance (weighted by the measured "
                             "inter-channel noise correlation) and two chroma axes "
