@@ -198,11 +198,17 @@ def run_cli(argv: list[str], pythonpath: str | None, log_path: Path) -> dict:
 
 def oracle(meta: dict, pythonpath: str | None) -> dict:
     """The blurred photo deconvolved with the true motion by the command line (cached)."""
+    from napari_edgecme.core.deconv import DEFAULTS
+    from napari_edgecme.core.motion import CameraMotion
+
     folder = Path(meta["blurred"]).parent
     path, info_path = folder / "oracle.png", folder / "oracle.json"
+    # the cache holds for the deconvolution's defaults it was made with (the CLI's)
+    defaults = json.loads(json.dumps(DEFAULTS["hyperlaplacian"]))
     if info_path.is_file() and path.is_file():
-        return json.loads(info_path.read_text())
-    from napari_edgecme.core.motion import CameraMotion
+        cached = json.loads(info_path.read_text())
+        if cached.get("defaults") == defaults:
+            return cached
 
     # The truth recentred on its centroid pose: exactly the same blur (every pose times
     # one homography, claim 2), so the oracle is the sharp image moved by that pose, as
@@ -219,6 +225,7 @@ def oracle(meta: dict, pythonpath: str | None) -> dict:
                   pythonpath, folder / "oracle.log")
     res["load_average"] = [load, os.getloadavg()[0]]
     res["motion"] = "truth recentred on its centroid pose"
+    res["defaults"] = defaults
     if res["rc"] != 0:
         raise RuntimeError(f"oracle deconvolution failed: {res['summary']}")
     res["path"] = str(path)

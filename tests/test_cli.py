@@ -245,6 +245,23 @@ def test_deconvolve_keeps_16_bit_and_rgb(cd, capsys):
     assert restored.shape == (128, 128, 3) and restored.dtype == np.uint8
 
 
+def test_the_summary_says_how_an_rgb_photo_was_deconvolved(cd, capsys):
+    gray8 = read_image("blurred.png")
+    write_image("photo.png", np.stack([gray8, gray8[::-1], gray8[:, ::-1]], -1))
+    said = {}
+    for color in ("opponent", "rgb"):
+        status, _, err = run(["deconvolve", "photo.png", "--motion", "truth.json", "-o",
+                                f"{color}.png", "--color", color], capsys)
+        assert status == 0, err
+        said[color] = err[-1]
+    assert "(hyperlaplacian, luminance + chroma, " in said["opponent"]
+    assert "(hyperlaplacian, R, G, B each, " in said["rgb"]
+    assert Path("opponent.png").read_bytes() != Path("rgb.png").read_bytes()
+    status, _, err = run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
+                          "gray.png"], capsys)
+    assert status == 0 and "chroma" not in err[-1] and "each" not in err[-1]
+
+
 def test_lam_is_passed_as_lambda_f_so_our_own_cli_raises_no_deprecation(cd, capsys):
     import argparse
     import warnings

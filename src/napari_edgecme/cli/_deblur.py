@@ -159,8 +159,10 @@ def cmd_deblur(args, console: _Console) -> int:
         if args.save_motion is not None:
             result.motion.save(tmps[1])
     wrote = ", ".join(str(p) for _, p in outputs)
+    colour = _deconv.color_description(image.shape, args.deconvolution, params)
     done = ("not deconvolved" if result.info.no_blur else
-            f"deconvolved ({args.deconvolution}) in {seconds:.1f} s")
+            f"deconvolved ({args.deconvolution}{', ' + colour if colour else ''}) in "
+            f"{seconds:.1f} s")
     console.info(f"{estimate_summary(result, args.method, max_blur, source)}; {done}; "
                  f"wrote {wrote}")
     return EXIT_OK
@@ -228,6 +230,8 @@ def cmd_deconvolve(args, console: _Console) -> int:
     seconds = time.perf_counter() - t0
     with _writing(args.output) as (tmp,):
         _io.write_image(tmp, restored, bits=output_bits(image))
-    console.info(f"deconvolved {path} ({args.method}, {_describe(motion)}) in {seconds:.1f} s;"
+    colour = _deconv.color_description(image.shape, args.method, params)
+    console.info(f"deconvolved {path} ({args.method}, {colour + ', ' if colour else ''}"
+                 f"{_describe(motion)}) in {seconds:.1f} s;"
                  f" {gamma_note(curve, reason)}; wrote {args.output}")
     return EXIT_OK

@@ -102,10 +102,12 @@ record comes before each block's blur operator is built, after each chunk of til
 (tile spectra, the observation's spectra, each image step), after each slab of about
 a million pixels of the w-step, and after each half-quadratic step -- a few tenths
 of a second of work apart at most, whatever the image size -- and a stop at any of
-them returns at once. RGB images are deconvolved channel by channel with one motion
-(the operator and tile spectra are built once per block); with ``color="opponent"``
-the hyper-Laplacian solves the luminance and two chroma axes instead
-(:func:`opponent_data_weights`), the chroma at half resolution if asked.
+them returns at once. The hyper-Laplacian solves an RGB image in an opponent basis by
+default (``color="opponent"``): the luminance, then two chroma axes
+(:func:`opponent_data_weights`), the chroma at half resolution on large photos
+(:data:`HALF_CHROMA_PIXELS`); with ``color="rgb"``, and for RL and Wiener, RGB images
+are deconvolved channel by channel with one motion (the operator and tile spectra are
+built once per block).
 
 References
 ----------
@@ -153,8 +155,9 @@ from .photometry import channel_noise_correlation
 from .progress import Progress, StopRequested, drive, relay, stop
 
 __all__ = ["CHROMAS", "COLORS", "DEFAULTS", "HALF_CHROMA_PIXELS", "METHODS", "METHOD_PARAMETERS",
-           "OPPONENT", "SOLVERS", "check_deconvolution_parameters", "deconvolve",
-           "double_size", "from_opponent", "half_size", "iter_deconvolve", "to_opponent"]
+           "OPPONENT", "SOLVERS", "check_deconvolution_parameters", "color_description",
+           "deconvolve", "double_size", "from_opponent", "half_size", "iter_deconvolve",
+           "to_opponent"]
 
 #: Deconvolution methods, by name.
 METHODS = ("hyperlaplacian", "rl", "wiener")
@@ -684,7 +687,7 @@ OPPONENT_OFFSET = np.array([0.0, 0.5, 0.5])
 #: 3000 x 2000). Below it, half-resolution chroma lost 0.5 dB against full resolution on
 #: 20 ``lai`` photos at 640 px (the oracle deconvolution); camera files above it carry
 #: chroma at about half resolution anyway (a Bayer mosaic; JPEG's 4:2:0), and there it
-#: halved the time of a 12 MP deconvolution (true motion; not yet the default path).
+#: halved the time of a 12 MP deconvolution (true motion).
 HALF_CHROMA_PIXELS = 6_000_000
 
 
@@ -766,6 +769,22 @@ def double_size(a: np.ndarray, shape) -> np.ndarray:
         a = np.stack([even, odd], axis=axis + 1).reshape(
             (2 * n, a.shape[1]) if axis == 0 else (a.shape[0], 2 * n))
     return np.ascontiguousarray(a[:shape[0], :shape[1]])
+
+
+def color_description(image_shape, method: str, params: dict) -> str | None:
+    """How :func:`deconvolve` treats the colour of an image of this shape, in words.
+
+    ``params`` as :func:`deconvolve` takes them (defaults where missing). None for a
+    gray image; ``"R, G, B each"``, ``"luminance + chroma"`` or ``"luminance +
+    half-resolution chroma"`` for an RGB one (the command line's summary says it).
+    """
+    if len(image_shape) != 3:
+        return None
+    opts = {**DEFAULTS.get(method, {}), **params}
+    if method != "hyperlaplacian" or opts["color"] == "rgb":
+        return "R, G, B each"
+    half = _half_chroma(tuple(image_shape[:2]), opts["chroma"])
+    return "luminance + half-resolution chroma" if half else "luminance + chroma"
 
 
 def _half_chroma(shape, chroma: str) -> bool:
