@@ -270,6 +270,14 @@ def test_channel_noise_correlation_tells_independent_from_shared_noise(correlate
     assert (rho > 0.9) if correlated else (rho < 0.25)
 
 
+def test_a_noise_free_gray_render_in_rgb_reads_as_shared_noise():
+    # flat regions exactly flat (no noise to measure): the scene's own responses
+    gray = np.zeros((96, 96), np.float32)
+    gray[20:70, 30:60] = 0.8
+    assert channel_noise_correlation(np.repeat(gray[..., None], 3, axis=-1)) == pytest.approx(1.0)
+    assert channel_noise_correlation(np.full((96, 96, 3), 0.4, np.float32)) == 0.0
+
+
 def test_luminance_weight_follows_the_noise_correlation():
     lam, alpha = 1500.0, 2 / 3
     independent = deconv.opponent_data_weights(lam, alpha, 0.0)

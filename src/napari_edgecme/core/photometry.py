@@ -419,6 +419,8 @@ def channel_noise_correlation(image) -> float:
     -------
     float
         0 for an image too small or too flat to tell (no evidence of correlation).
+        Without measurable noise (flat regions exactly flat) the whole image's
+        responses are used: 1 for a gray image stored as RGB.
     """
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[2] != 3 or min(a.shape[:2]) < 3:
@@ -436,7 +438,12 @@ def channel_noise_correlation(image) -> float:
     flat = r[largest <= 3.0 * np.percentile(largest, 75)].astype(np.float64)
     power = (flat**2).sum(axis=0)
     if flat.shape[0] < 16 or np.any(power <= 0):
-        return 0.0
+        # no noise to measure (a noise-free render): the responses of the scene itself,
+        # so that a gray image stored as RGB still reads as shared (1)
+        flat = r.astype(np.float64)
+        power = (flat**2).sum(axis=0)
+        if np.any(power <= 0):
+            return 0.0
     pairs = [(0, 1), (0, 2), (1, 2)]
     rho = np.mean([(flat[:, i] * flat[:, j]).sum() / np.sqrt(power[i] * power[j])
                    for i, j in pairs])
