@@ -119,7 +119,7 @@ def real_photo(photo: dict, sheets: Path) -> dict:
     image = read_rgb(photo["input"])
     curve, reason = decide_gamma(photo["input"])
     t0 = time.perf_counter()
-    restored_rgb, estimate = deblur(image, gamma=curve)
+    restored_rgb, estimate = deblur(image, gamma=curve, deconv_params=dict(VARIANTS[0][1]))
     seconds = time.perf_counter() - t0
     linear = curve.decode(image)
     out = {"name": photo["name"], "gamma": f"{curve.name} ({reason})",
