@@ -256,10 +256,9 @@ class DeconvolutionWidget(QWidget):
                                              ("luminance + chroma", "opponent")],
                                     value=hl["color"])
         self.color_combo.native.setToolTip(
-            "Colour photos: deblur R, G and B each on its own, or deblur the luminance "
-            "(the channels' mean, weighted by how correlated their noise is) and two "
-            "colour-difference axes: less colour noise where the channels' noise is "
-            "independent")
+            "Colour photos: deblur the luminance (the channels' mean) and two "
+            "colour-difference axes, which lets large photos deblur their colour at half "
+            "resolution; or deblur R, G and B each on its own (the old way)")
         self.chroma_combo = ComboBox(choices=[("auto (half from "
                                               f"{HALF_CHROMA_PIXELS / 1e6:g} MP)", "auto"),
                                               ("full resolution", "full"),

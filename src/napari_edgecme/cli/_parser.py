@@ -122,9 +122,9 @@ def _add_deconvolution(parser) -> None:
     group.add_argument("--nsr", type=_number(), metavar="R",
                        help=f"wiener: noise-to-signal ratio (default {d['wiener']['nsr']:g})")
     group.add_argument("--color", choices=("opponent", "rgb"),
-                       help="hyperlaplacian, RGB photos: rgb solves R, G and B independently; "
-                            "opponent solves the luminance (weighted by the measured "
-                            "inter-channel noise correlation) and two chroma axes "
+                       help="hyperlaplacian, RGB photos: opponent solves the luminance "
+                            "(the channels' mean) and two chroma axes; rgb solves R, G and "
+                            "B independently "
                             f"(default {d['hyperlaplacian']['color']})")
     group.add_argument("--chroma", choices=("auto", "full", "half"),
                        help="hyperlaplacian with --color opponent: the chroma at full or half "

@@ -151,7 +151,6 @@ from .deconv_solvers import (
     wiener,
 )
 from .motion import CameraMotion
-from .photometry import channel_noise_correlation
 from .progress import Progress, StopRequested, drive, relay, stop
 
 __all__ = ["CHROMAS", "COLORS", "DEFAULTS", "HALF_CHROMA_PIXELS", "METHODS", "METHOD_PARAMETERS",
@@ -254,13 +253,12 @@ def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
         iterations ran 1.4x faster than 8 and lost 1.5 dB over the whole frame, 0.25 dB
         50 px inside it (``benchmarks/results/polish.md``).
     color : {"opponent", "rgb"}, default "opponent"
-        hyperlaplacian, RGB images: ``"opponent"`` solves the luminance (the mean, with
-        a data weight set by the channels' measured noise correlation,
-        :func:`opponent_data_weights`) and two chroma axes of an orthonormal basis
-        (:data:`OPPONENT`); ``"rgb"`` solves R, G, B one by one. With the true motion on
-        the 60 ``lai`` cases (independent noise per channel) the opponent basis is
-        0.43 dB better on average (55/60 cases); on camera JPEGs, whose channels share
-        their noise, it is about the RGB result (``benchmarks/results/color.md``).
+        hyperlaplacian, RGB images: ``"opponent"`` solves the luminance (the mean of R,
+        G and B, as a gray photo) and two chroma axes of an orthonormal basis
+        (:data:`OPPONENT`, :func:`opponent_data_weights`); ``"rgb"`` solves R, G, B one
+        by one. With Xu+Ep's estimates the two are within 0.1 dB on ``lai``; with half
+        resolution chroma (below) a 12 MP photo takes half the time, 0.15 dB better
+        (``benchmarks/results/color.md``).
     chroma : {"auto", "full", "half"}, default "auto"
         hyperlaplacian with ``color="opponent"``: solve the chroma at half resolution
         (about half the time) -- ``"auto"`` from :data:`HALF_CHROMA_PIXELS` up.
@@ -705,35 +703,33 @@ def from_opponent(opp: np.ndarray) -> np.ndarray:
     return (opp - OPPONENT_OFFSET.astype(opp.dtype)) @ basis
 
 
-def opponent_data_weights(lam: float, alpha: float, noise_correlation: float = 0.0
-                          ) -> list[float]:
+def opponent_data_weights(lam: float, alpha: float) -> list[float]:
     """The hyper-Laplacian data weight of each scaled opponent channel.
 
-    The luminance is solved as the mean of R, G and B, a gray image whose noise
-    variance is ``(1 + 2 rho) / 3`` of one channel's, for channels whose noise is
-    correlated by ``rho`` (:func:`~.photometry.channel_noise_correlation`). Its weight
-    is ``lam (3 / (1 + 2 rho)) ** (1 - alpha / 2)``: the hyper-Laplacian objective is
-    invariant under scaling the image by ``c`` with the weight scaled by
-    ``c^(alpha - 2)``, so dividing the noise variance by ``k`` at a fixed contrast is
-    worth ``k^(1 - alpha / 2)`` in weight where the full ``k`` (a Gaussian MAP
-    estimate's rule) would also sharpen the contrast-relative noise the prior was tuned
-    on. Measured with the true motion on the 60 ``lai`` cases
-    (``benchmarks/results/color.md``): +0.43 dB over RGB, 55/60 better, worst -0.41;
-    the full ratio ``3 / (1 + 2 rho)`` gave +0.44 but lost up to 1.1 dB on the cleanest
-    photos. ``rho = 1`` (a gray scene, or a JPEG whose noise sits in the luminance)
-    gives ``lam``: a gray photo stored as RGB is restored exactly as the gray image is.
-    Each chroma axis gets the RGB weight in the orthonormal basis: scaled by ``s`` into
-    [0, 1] it is solved with ``lam s^(alpha - 2)``, which has the same minimiser, scaled
-    (the data term scales by ``s^2``, the prior by ``s^alpha``).
+    The luminance is solved as the mean of R, G and B, a gray image, with ``lam``: as a
+    gray photo is (so a gray photo stored as RGB is restored exactly as the gray image
+    is). Each chroma axis gets the RGB weight in the orthonormal basis: scaled by ``s``
+    into [0, 1] it is solved with ``lam s^(alpha - 2)``, which has the same minimiser,
+    scaled (the data term scales by ``s^2``, the prior by ``s^alpha``).
+
+    Notes
+    -----
+    With independent noise per channel the mean carries a third of one channel's noise
+    variance, and with the true motion a luminance weight that credits it --
+    ``lam (3 / (1 + 2 rho)) ** (1 - alpha / 2)``, ``rho`` the channels' noise
+    correlation (:func:`~.photometry.channel_noise_correlation`) -- was 0.43 dB better
+    than R, G, B on the 60 ``lai`` cases. With an *estimated* motion the residual is
+    the motion's error more than noise, and the larger weight fits it: on a 12 MP photo
+    with its Xu+Ep estimate it lost 0.5 dB to R, G, B, where ``lam`` gained 0.15; on 20
+    ``lai`` cases with their estimates the two were within 0.1 dB of R, G, B
+    (``benchmarks/results/color.md``). A deconvolution serves estimates, so ``lam``.
 
     Returns
     -------
     list of 3 floats
         Luminance, chroma 1, chroma 2.
     """
-    rho = float(np.clip(noise_correlation, 0.0, 1.0))
-    chroma = [lam * float(sc) ** (alpha - 2.0) for sc in OPPONENT_SCALE[1:]]
-    return [lam * (3.0 / (1.0 + 2.0 * rho)) ** (1.0 - alpha / 2.0), *chroma]
+    return [lam, *(lam * float(sc) ** (alpha - 2.0) for sc in OPPONENT_SCALE[1:])]
 
 
 def half_size(a: np.ndarray) -> np.ndarray:
@@ -805,8 +801,7 @@ def _run_opponent(img: np.ndarray, motion: CameraMotion, method: str, opts: dict
     luminance = np.ascontiguousarray(opp[..., 0])
     chroma = np.ascontiguousarray(opp[..., 1:])
     del opp
-    rho = channel_noise_correlation(img)
-    weights = opponent_data_weights(opts["lam"], opts["alpha"], rho)
+    weights = opponent_data_weights(opts["lam"], opts["alpha"])
     half = _half_chroma((H, W), opts["chroma"])
     chroma_img, chroma_motion = chroma, motion
     if half:
