@@ -26,7 +26,6 @@ from napari_edgecme.core.deconv_prior import (
 from napari_edgecme.core.deconv_solvers import conjugate_gradient
 from napari_edgecme.core.linop import MatrixOperator
 from napari_edgecme.core.metrics import aligned_psnr, psnr
-from napari_edgecme.core.photometry import channel_noise_correlation
 from napari_edgecme.core.progress import Progress, StopRequested
 from napari_edgecme.core.synth import densify_path, make_case, random_trajectory, sample_image
 
@@ -256,26 +255,6 @@ def test_half_and_double_size_keep_constants_and_ramps():
     flat = np.full((9, 12), 0.3, np.float32)
     np.testing.assert_allclose(deconv.double_size(deconv.half_size(flat), flat.shape), 0.3,
                                atol=1e-6)
-
-
-@pytest.mark.parametrize("correlated", [False, True])
-def test_channel_noise_correlation_tells_independent_from_shared_noise(correlated, rng):
-    from scipy.ndimage import gaussian_filter
-
-    # a blurred photo, as deconvolution gets one: little texture left beside the noise
-    scene = gaussian_filter(sample_image("camera", 128), 2.0)[..., None] * np.array(
-        [0.9, 0.7, 0.5])
-    noise = rng.normal(0, 0.01, (128, 128, 1 if correlated else 3))
-    rho = channel_noise_correlation(np.clip(scene + noise, 0, 1))
-    assert (rho > 0.9) if correlated else (rho < 0.25)
-
-
-def test_a_noise_free_gray_render_in_rgb_reads_as_shared_noise():
-    # flat regions exactly flat (no noise to measure): the scene's own responses
-    gray = np.zeros((96, 96), np.float32)
-    gray[20:70, 30:60] = 0.8
-    assert channel_noise_correlation(np.repeat(gray[..., None], 3, axis=-1)) == pytest.approx(1.0)
-    assert channel_noise_correlation(np.full((96, 96, 3), 0.4, np.float32)) == 0.0
 
 
 def test_the_luminance_has_the_gray_weight_and_the_chroma_the_rgb_weight():

@@ -13,6 +13,7 @@ from napari_edgecme.core.deblur import deblur
 from napari_edgecme.core.metrics import aligned_scores
 from napari_edgecme.core.photometry import (
     Gamma,
+    channel_noise_correlation,
     decide_gamma,
     linear_to_srgb,
     parse_gamma,
@@ -158,3 +159,27 @@ def test_deblur_default_and_auto_are_linear_for_arrays():
 def test_deblur_refuses_a_bad_gamma_before_any_work():
     with pytest.raises(ValueError, match=r"gamma must be .*got 'bright'"):
         deblur(np.zeros((32, 32)), gamma="bright")
+
+
+# --------------------------------------------------------------------------------------
+# the channels' noise correlation (photometry.channel_noise_correlation)
+# --------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("correlated", [False, True])
+def test_channel_noise_correlation_tells_independent_from_shared_noise(correlated, rng):
+    from scipy.ndimage import gaussian_filter
+
+    # a blurred photo, as deconvolution gets one: little texture left beside the noise
+    scene = gaussian_filter(sample_image("camera", 128), 2.0)[..., None] * np.array(
+        [0.9, 0.7, 0.5])
+    noise = rng.normal(0, 0.01, (128, 128, 1 if correlated else 3))
+    rho = channel_noise_correlation(np.clip(scene + noise, 0, 1))
+    assert (rho > 0.9) if correlated else (rho < 0.25)
+
+
+def test_a_noise_free_gray_render_in_rgb_reads_as_shared_noise():
+    # flat regions exactly flat (no noise to measure): the scene's own responses
+    gray = np.zeros((96, 96), np.float32)
+    gray[20:70, 30:60] = 0.8
+    assert channel_noise_correlation(np.repeat(gray[..., None], 3, axis=-1)) == pytest.approx(1.0)
+    assert channel_noise_correlation(np.full((96, 96, 3), 0.4, np.float32)) == 0.0
