@@ -34,7 +34,6 @@ def block_peak(motion, side: int, method: str, solver: str, border_iterations: i
     """
     from ..core.deconv_blocks import (
         auto_stride,
-        fourier_border_reach,
         fourier_margin,
         latent_pad,
         psf_extent,
@@ -55,8 +54,7 @@ def block_peak(motion, side: int, method: str, solver: str, border_iterations: i
         domain = LatentDomain(motion, (0, side, 0, side), latent_pad(K), auto_stride(motion))
         fourier = None
         if method == "wiener" or solver == "fourier":
-            fourier = PatchFourier(domain, margin=fourier_margin(K),
-                                   border_reach=fourier_border_reach(K))
+            fourier = PatchFourier(domain, margin=fourier_margin(K))
         if method == "hyperlaplacian":
             steps = hyperlaplacian_steps(domain, g, lam=1500.0, alpha=2 / 3, betas=[1.0],
                                          inner_iterations=1, solver=solver, fourier=fourier,

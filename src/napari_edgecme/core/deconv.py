@@ -137,7 +137,6 @@ from .deconv_blocks import (
     BlockPlan,
     auto_block_size,
     auto_stride,
-    fourier_border_reach,
     fourier_margin,
     latent_pad,
     psf_extent,
@@ -618,8 +617,7 @@ def _run(img: np.ndarray, motion: CameraMotion, method: str, opts: dict, lams=No
             yield Progress("deconvolve", step, total, f"{where_b}blur operator ready")
             fourier = None
             if use_fourier:
-                fourier = PatchFourier(domain, margin=fourier_margin(K),
-                                       border_reach=fourier_border_reach(K), build=False)
+                fourier = PatchFourier(domain, margin=fourier_margin(K), build=False)
                 yield from relay(fourier.iter_build(), lambda r, at=step, where=where_b: Progress(
                     "deconvolve", at, total, where + r.message))
                 yield Progress("deconvolve", step, total, f"{where_b}tile spectra ready")

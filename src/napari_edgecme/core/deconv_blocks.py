@@ -16,11 +16,10 @@ from .deconv_solvers import _CHUNK_BYTES, border_tiles
 from .motion import CameraMotion, psf_size_for
 from .operators import PatchGrid
 
-__all__ = ["BLOCK_MEMORY_BUDGET", "FOURIER_BORDER_REACH", "FOURIER_MARGIN", "MAX_BLOCK",
-           "MAX_STRIDE", "MIN_BLOCK", "MIN_STRIDE", "PSF_DRIFT", "BlockPlan", "auto_block_size",
-           "auto_stride", "block_margin", "block_memory", "block_memory_phases",
-           "fourier_border_reach", "fourier_margin", "latent_pad", "psf_drift_rate",
-           "psf_extent"]
+__all__ = ["BLOCK_MEMORY_BUDGET", "FOURIER_MARGIN", "MAX_BLOCK", "MAX_STRIDE", "MIN_BLOCK",
+           "MIN_STRIDE", "PSF_DRIFT", "BlockPlan", "auto_block_size", "auto_stride",
+           "block_margin", "block_memory", "block_memory_phases", "fourier_margin",
+           "latent_pad", "psf_drift_rate", "psf_extent"]
 
 #: Smallest accepted block size (pixels).
 MIN_BLOCK = 64
@@ -50,12 +49,6 @@ MAX_STRIDE = 256
 
 #: Patch-wise Fourier solver: box margin beyond each EFF window, in PSF sizes.
 FOURIER_MARGIN = 1.0
-
-#: Patch-wise Fourier solver: a tile whose window comes within this many PSF sizes of
-#: an image edge is a border tile (masked problem, solved by CG); None: every tile whose
-#: box reaches beyond the edge.
-FOURIER_BORDER_REACH = None
-
 
 def psf_extent(motion: CameraMotion, beyond: float = 0.0) -> int:
     """Odd PSF side holding the motion anywhere in the image (grid plus corners), or in
@@ -106,14 +99,6 @@ def block_margin(psf_size: int) -> int:
 def fourier_margin(psf_size: int) -> int:
     """Box margin of the patch-wise Fourier solver beyond each EFF window (px)."""
     return max(8, round(FOURIER_MARGIN * psf_size))
-
-
-def fourier_border_reach(psf_size: int) -> int | None:
-    """How near an image edge an EFF window must come for its tile to be a border tile
-    of the patch-wise Fourier solver (px; None: the whole box margin)."""
-    if FOURIER_BORDER_REACH is None:
-        return None
-    return round(FOURIER_BORDER_REACH * psf_size)
 
 
 def block_memory_phases(box_shape, psf_size: int, stride: int, *,
@@ -204,11 +189,10 @@ def block_memory_phases(box_shape, psf_size: int, stride: int, *,
         lead = tuple(o // 2 + mm for o, mm in zip(g.overlap, margin, strict=True))
         canvas = int(np.prod([max(lead[a] + N[a], (g.counts[a] - 1) * g.stride[a] + B[a])
                               for a in range(2)]))
-        reach = fourier_border_reach(K)
         rows = border_tiles(g.counts[0], g.stride[0], B[0], P[0], lead[0],
-                            slice(pad, pad + h), image_edges[:2], reach)
+                            slice(pad, pad + h), image_edges[:2])
         cols = border_tiles(g.counts[1], g.stride[1], B[1], P[1], lead[1],
-                            slice(pad, pad + w), image_edges[2:], reach)
+                            slice(pad, pad + w), image_edges[2:])
         border = rows[:, None] | cols[None, :]
         nb = int(border.sum())
         per_chunk = max(1, _CHUNK_BYTES // (B[0] * (B[1] // 2 + 1) * 16))

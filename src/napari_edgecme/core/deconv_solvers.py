@@ -146,25 +146,17 @@ def _rv(spec: np.ndarray) -> np.ndarray:
 
 
 def border_tiles(counts: int, stride: int, box: int, patch: int, lead: int, inner: slice,
-                 edges: tuple[bool, bool], reach: int | None = None) -> np.ndarray:
+                 edges: tuple[bool, bool]) -> np.ndarray:
     """Which tiles along one axis are *border tiles* of :class:`PatchFourier`, (counts,) bool.
 
-    Tile ``i``'s box spans canvas ``[i stride, i stride + box)`` and its window of
-    ``patch`` px sits in it with ``(box - patch) // 2`` px before it (the rest after);
-    the observed rectangle spans canvas ``lead + inner``. A tile is a border tile when
-    its window comes within ``reach`` px of a side of the observed rectangle that is an
-    image edge (``edges``: before, after). ``reach`` is capped at the box margin on
-    that side; None means the whole margin: every box that reaches beyond the edge.
+    Tile ``i``'s box spans canvas ``[i stride, i stride + box)``; the observed rectangle
+    spans canvas ``lead + inner``. A tile is a border tile when its box reaches beyond a
+    side of the observed rectangle that is an image edge (``edges``: before, after).
     """
     starts = np.arange(counts) * stride
     first, stop = lead + inner.start, lead + inner.stop
-    before_margin = (box - patch) // 2
-    after_margin = box - patch - before_margin
-    before_reach = before_margin if reach is None else min(int(reach), before_margin)
-    after_reach = after_margin if reach is None else min(int(reach), after_margin)
-    window = starts + before_margin
-    before = (window - before_reach < first) & bool(edges[0])
-    after = (window + patch + after_reach > stop) & bool(edges[1])
+    before = (starts < first) & bool(edges[0])
+    after = (starts + box > stop) & bool(edges[1])
     return before | after
 
 
@@ -203,15 +195,11 @@ class PatchFourier:
     domain : LatentDomain
     margin : int
         Minimum box margin beyond each window (about one PSF size).
-    border_reach : int or None, default None
-        A tile is a border tile when its window comes within this many pixels of an
-        image edge (:func:`border_tiles`); None: when its box reaches beyond the edge.
     build : bool, default True
         Compute the tile spectra now; with False, run :meth:`iter_build` before use.
     """
 
-    def __init__(self, domain: LatentDomain, margin: int, *, border_reach: int | None = None,
-                 build: bool = True):
+    def __init__(self, domain: LatentDomain, margin: int, *, build: bool = True):
         self.domain = domain
         op = domain.op
         grid = op.grid
@@ -250,9 +238,9 @@ class PatchFourier:
         #: cheap closed form is enough there)
         top, bottom, left, right = domain.image_edges
         rows = border_tiles(self.counts[0], self.stride[0], B0, P[0], self.lead[0], inner[0],
-                            (top, bottom), border_reach)
+                            (top, bottom))
         cols = border_tiles(self.counts[1], self.stride[1], B1, P[1], self.lead[1], inner[1],
-                            (left, right), border_reach)
+                            (left, right))
         self.border = (rows[:, None] | cols[None, :]).ravel()
         self._border_pos = np.cumsum(self.border) - 1
         # Parseval weights of a real FFT's half spectrum along the last axis (for _rv)
