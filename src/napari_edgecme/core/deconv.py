@@ -716,11 +716,12 @@ def opponent_data_weights(lam: float, alpha: float) -> list[float]:
     variance, and with the true motion a luminance weight that credits it --
     ``lam (3 / (1 + 2 rho)) ** (1 - alpha / 2)``, ``rho`` the channels' noise
     correlation (:func:`~.photometry.channel_noise_correlation`) -- was 0.43 dB better
-    than R, G, B on the 60 ``lai`` cases. With an *estimated* motion the residual is
-    the motion's error more than noise, and the larger weight fits it: on a 12 MP photo
-    with its Xu+Ep estimate it lost 0.5 dB to R, G, B, where ``lam`` gained 0.15; on 20
-    ``lai`` cases with their estimates the two were within 0.1 dB of R, G, B
-    (``benchmarks/results/color.md``). A deconvolution serves estimates, so ``lam``.
+    than R, G, B on the 60 ``lai`` cases (``lam``: -0.04). With an *estimated* motion
+    the residual is the motion's error more than noise, and the larger weight fits it:
+    on a 12 MP photo with its Xu+Ep estimate it lost 0.35-0.5 dB to R, G, B, where
+    ``lam`` gained 0.16; on 20 ``lai`` cases with their estimates the two were within
+    0.1 dB of R, G, B (``benchmarks/results/color.md``). A deconvolution serves
+    estimates, so ``lam``.
 
     Returns
     -------
