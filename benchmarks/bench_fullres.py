@@ -32,7 +32,8 @@ resolution, beside the truth's; aligned PSNR (rotation-aware as the ``lai`` suit
 :func:`aligned_psnr_fast`) against the upscaled sharp image of the
 blurred input, the restored image and the oracle (``edgecme deconvolve BLURRED --motion
 truth.json -o ORACLE.png``: the same deconvolution with the same defaults as ``deblur``, given
-the true motion; cached, as it does not depend on the estimator), and the share of the
+the true motion; cached -- it does not depend on the estimator -- and redone when the
+deconvolution's code changes), and the share of the
 oracle's gain, ``(restored - blurred) / (oracle - blurred)``. Above ``--psnr-crop-mp``
 megapixels the PSNRs are computed on a central crop of that many megapixels (said in the
 table).
@@ -198,16 +199,19 @@ def run_cli(argv: list[str], pythonpath: str | None, log_path: Path) -> dict:
 
 def oracle(meta: dict, pythonpath: str | None) -> dict:
     """The blurred photo deconvolved with the true motion by the command line (cached)."""
-    from napari_edgecme.core.deconv import DEFAULTS
+    import hashlib
+
+    from napari_edgecme.core import deconv, deconv_blocks, deconv_solvers
     from napari_edgecme.core.motion import CameraMotion
 
     folder = Path(meta["blurred"]).parent
     path, info_path = folder / "oracle.png", folder / "oracle.json"
-    # the cache holds for the deconvolution's defaults it was made with (the CLI's)
-    defaults = json.loads(json.dumps(DEFAULTS["hyperlaplacian"]))
+    # the cache holds for the deconvolution code it was made with (its defaults included)
+    code = hashlib.sha256(b"".join(Path(m.__file__).read_bytes()
+                                   for m in (deconv, deconv_blocks, deconv_solvers))).hexdigest()
     if info_path.is_file() and path.is_file():
         cached = json.loads(info_path.read_text())
-        if cached.get("defaults") == defaults:
+        if cached.get("deconvolution_code") == code:
             return cached
 
     # The truth recentred on its centroid pose: exactly the same blur (every pose times
@@ -225,7 +229,7 @@ def oracle(meta: dict, pythonpath: str | None) -> dict:
                   pythonpath, folder / "oracle.log")
     res["load_average"] = [load, os.getloadavg()[0]]
     res["motion"] = "truth recentred on its centroid pose"
-    res["defaults"] = defaults
+    res["deconvolution_code"] = code
     if res["rc"] != 0:
         raise RuntimeError(f"oracle deconvolution failed: {res['summary']}")
     res["path"] = str(path)
