@@ -266,8 +266,8 @@ class DeconvolutionWidget(QWidget):
                                      value=hl["chroma"])
         self.chroma_combo.native.setToolTip(
             "Luminance + chroma: the colour-difference axes at full or half resolution "
-            "(half: about half the time; colour detail is finer than the eye resolves "
-            "on large photos)")
+            "(half: about half the time; a camera records colour at about half "
+            "resolution anyway: Bayer mosaic, JPEG 4:2:0)")
         self.color_combo.changed.connect(self._sync_chroma)
         self._sync_chroma()
         self.rl_iterations = QSpinBox()
