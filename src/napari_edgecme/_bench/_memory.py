@@ -32,12 +32,7 @@ def block_peak(motion, side: int, method: str, solver: str, border_iterations: i
     those of the Fourier methods' border correction (memory does not depend on it).
     Returns ``(peak, domain)``, the domain for its operator's figures.
     """
-    from ..core.deconv_blocks import (
-        auto_stride,
-        fourier_margin,
-        latent_pad,
-        psf_extent,
-    )
+    from ..core.deconv_blocks import auto_stride, fourier_margin, latent_pad, psf_extent
     from ..core.deconv_solvers import (
         LatentDomain,
         PatchFourier,

@@ -50,6 +50,7 @@ MAX_STRIDE = 256
 #: Patch-wise Fourier solver: box margin beyond each EFF window, in PSF sizes.
 FOURIER_MARGIN = 1.0
 
+
 def psf_extent(motion: CameraMotion, beyond: float = 0.0) -> int:
     """Odd PSF side holding the motion anywhere in the image (grid plus corners), or in
     the image grown by ``beyond`` pixels on every side (the latent domains' tile centres
@@ -189,10 +190,10 @@ def block_memory_phases(box_shape, psf_size: int, stride: int, *,
         lead = tuple(o // 2 + mm for o, mm in zip(g.overlap, margin, strict=True))
         canvas = int(np.prod([max(lead[a] + N[a], (g.counts[a] - 1) * g.stride[a] + B[a])
                               for a in range(2)]))
-        rows = border_tiles(g.counts[0], g.stride[0], B[0], P[0], lead[0],
-                            slice(pad, pad + h), image_edges[:2])
-        cols = border_tiles(g.counts[1], g.stride[1], B[1], P[1], lead[1],
-                            slice(pad, pad + w), image_edges[2:])
+        rows = border_tiles(g.counts[0], g.stride[0], B[0], lead[0], slice(pad, pad + h),
+                            image_edges[:2])
+        cols = border_tiles(g.counts[1], g.stride[1], B[1], lead[1], slice(pad, pad + w),
+                            image_edges[2:])
         border = rows[:, None] | cols[None, :]
         nb = int(border.sum())
         per_chunk = max(1, _CHUNK_BYTES // (B[0] * (B[1] // 2 + 1) * 16))

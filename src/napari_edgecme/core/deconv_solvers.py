@@ -145,7 +145,7 @@ def _rv(spec: np.ndarray) -> np.ndarray:
     return spec.view(spec.real.dtype)
 
 
-def border_tiles(counts: int, stride: int, box: int, patch: int, lead: int, inner: slice,
+def border_tiles(counts: int, stride: int, box: int, lead: int, inner: slice,
                  edges: tuple[bool, bool]) -> np.ndarray:
     """Which tiles along one axis are *border tiles* of :class:`PatchFourier`, (counts,) bool.
 
@@ -237,9 +237,9 @@ class PatchFourier:
         #: (cuts between blocks lie at least two PSF sizes from the kept region, so the
         #: cheap closed form is enough there)
         top, bottom, left, right = domain.image_edges
-        rows = border_tiles(self.counts[0], self.stride[0], B0, P[0], self.lead[0], inner[0],
+        rows = border_tiles(self.counts[0], self.stride[0], B0, self.lead[0], inner[0],
                             (top, bottom))
-        cols = border_tiles(self.counts[1], self.stride[1], B1, P[1], self.lead[1], inner[1],
+        cols = border_tiles(self.counts[1], self.stride[1], B1, self.lead[1], inner[1],
                             (left, right))
         self.border = (rows[:, None] | cols[None, :]).ravel()
         self._border_pos = np.cumsum(self.border) - 1
