@@ -53,41 +53,25 @@ def _cpu() -> float:
     return t.user + t.system
 
 
-def lai_case(case: dict) -> dict:
-    """One ``lai`` case: the three deconvolutions with the true motion, scored."""
-    from napari_edgecme.core.deconv import deconvolve
-    from napari_edgecme.core.metrics import aligned_psnr
-    from napari_edgecme.core.photometry import channel_noise_correlation
-
-    blurred, sharp, truth = lai_load(case)
-    row = {"name": case["name"], "category": case["category"],
-           "rho": channel_noise_correlation(blurred),
-           "blurred": aligned_psnr(blurred, sharp, rotation=True)}
-    for key, params in VARIANTS:
-        c0 = _cpu()
-        restored = deconvolve(blurred, truth, **params)
-        row[f"{key}_cpu"] = _cpu() - c0
-        row[key] = aligned_psnr(restored, sharp, rotation=True)
-    return row
-
-
-def lai_estimate_case(case: dict, motions: Path) -> dict:
-    """One ``lai`` case: a Xu+Ep estimate (as the suite runs it; kept in ``motions`` and
-    reused from there), the three deconvolutions."""
+def lai_case(case: dict, motions: Path | None = None) -> dict:
+    """One ``lai`` case: the three deconvolutions, scored. With the true motion, or with
+    ``motions`` a folder: with the case's Xu+Ep estimate (as the suite runs it), kept
+    there and reused from there."""
     from napari_edgecme.core.deconv import deconvolve
     from napari_edgecme.core.estimate import estimate_motion
     from napari_edgecme.core.metrics import aligned_psnr
     from napari_edgecme.core.motion import CameraMotion
     from napari_edgecme.core.photometry import channel_noise_correlation
 
-    blurred, sharp, truth = lai_load(case)
-    path = motions / f"{case['name']}-xu+ep.json"
-    if path.is_file():
-        motion = CameraMotion.load(path)
-    else:
-        motion = estimate_motion(blurred, "xu+ep", "rotation", case["max_blur"],
-                                 truth.intrinsics.focal_px, rng=0).motion
-        motion.save(path)
+    blurred, sharp, motion = lai_load(case)
+    if motions is not None:
+        path = motions / f"{case['name']}-xu+ep.json"
+        if path.is_file():
+            motion = CameraMotion.load(path)
+        else:
+            motion = estimate_motion(blurred, "xu+ep", "rotation", case["max_blur"],
+                                     motion.intrinsics.focal_px, rng=0).motion
+            motion.save(path)
     row = {"name": case["name"], "category": case["category"],
            "rho": channel_noise_correlation(blurred),
            "blurred": aligned_psnr(blurred, sharp, rotation=True)}
@@ -97,6 +81,16 @@ def lai_estimate_case(case: dict, motions: Path) -> dict:
         row[f"{key}_cpu"] = _cpu() - c0
         row[key] = aligned_psnr(restored, sharp, rotation=True)
     return row
+
+
+def _in_parallel(func, items, jobs: int, *args) -> list[dict]:
+    """``func(item, *args)`` for every item in ``jobs`` processes, each row logged."""
+    with ProcessPoolExecutor(jobs) as pool:
+        rows = []
+        for row in pool.map(func, items, *([a] * len(items) for a in args)):
+            print(json.dumps(row), file=sys.stderr, flush=True)
+            rows.append(row)
+    return rows
 
 
 def lai_report(rows: list[dict]) -> list[str]:
@@ -197,26 +191,17 @@ def main(argv=None) -> int:
     lines = ["# Colour in the deconvolution: per-channel RGB against the opponent basis", "",
              f"Written by `benchmarks/bench_color.py`; {machine_line(machine_info())}.", ""]
     if "lai" in args.parts:
-        cases = lai_cases(default_data_dir("lai"), args.quick)
-        with ProcessPoolExecutor(args.jobs) as pool:
-            rows = []
-            for row in pool.map(lai_case, cases):
-                print(json.dumps(row), file=sys.stderr, flush=True)
-                rows.append(row)
+        rows = _in_parallel(lai_case, lai_cases(default_data_dir("lai"), args.quick), args.jobs)
         (args.out / "color-lai.json").write_text(json.dumps(rows, indent=1))
         lines += [f"## `lai`, true motion ({len(rows)} cases)", "",
                   "Aligned PSNR (dB) of the hyper-Laplacian deconvolution with the true "
                   "motion; CPU: median seconds of one deconvolution.", "",
                   *lai_report(rows), ""]
     if "lai-xuep" in args.parts:
-        cases = lai_cases(default_data_dir("lai"), args.quick)
-        with ProcessPoolExecutor(args.jobs) as pool:
-            rows = []
-            motions = args.out / "motions"
-            motions.mkdir(exist_ok=True)
-            for row in pool.map(lai_estimate_case, cases, [motions] * len(cases)):
-                print(json.dumps(row), file=sys.stderr, flush=True)
-                rows.append(row)
+        motions = args.out / "motions"
+        motions.mkdir(exist_ok=True)
+        rows = _in_parallel(lai_case, lai_cases(default_data_dir("lai"), args.quick), args.jobs,
+                            motions)
         (args.out / "color-lai-xuep.json").write_text(json.dumps(rows, indent=1))
         lines += [f"## `lai`, Xu+Ep's estimate ({len(rows)} cases)", "",
                   "The same, each case deconvolved with its Xu+Ep estimate (told the true "
@@ -225,12 +210,7 @@ def main(argv=None) -> int:
     if "real" in args.parts:
         sheets = args.out / "sheets"
         sheets.mkdir(exist_ok=True)
-        photos = real_photos(default_data_dir("real"))
-        with ProcessPoolExecutor(args.jobs) as pool:
-            rows = []
-            for row in pool.map(real_photo, photos, [sheets] * len(photos)):
-                print(json.dumps(row), file=sys.stderr, flush=True)
-                rows.append(row)
+        rows = _in_parallel(real_photo, real_photos(default_data_dir("real")), args.jobs, sheets)
         (args.out / "color-real.json").write_text(json.dumps(rows, indent=1))
         lines += [f"## The paper's real photos ({len(rows)})", "",
                   "One Xu+Ep estimate per photo (command-line defaults, gamma from the "

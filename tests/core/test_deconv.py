@@ -271,7 +271,7 @@ def test_a_gray_photo_in_rgb_comes_back_gray(small):
     out = deconvolve(rgb, small.motion, color="opponent")
     assert np.abs(out[..., 0] - out[..., 1]).max() < 1e-4
     assert np.abs(out[..., 0] - out[..., 2]).max() < 1e-4
-    # its noise is shared by the channels: restored as the gray image is
+    # the luminance is solved as a gray photo: restored as the gray image is
     np.testing.assert_allclose(out[..., 0], deconvolve(small.blurred, small.motion), atol=2e-3)
 
 
