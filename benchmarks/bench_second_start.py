@@ -8,7 +8,8 @@ polished candidates (and the unpolished ones they came from), deconvolves each w
 default deconvolution and scores it as the suite does (aligned PSNR with rotation, PSF
 NCC), and records for each the criteria a rule could use: the gradient sparsity of its
 polish's latent (``estimate.gradient_sparsity``, the current rule) and the L0 cost
-(Eq. 21) of the unpolished estimate on the same interior (the rule before it).
+(Eq. 21) of the unpolished estimate on the same interior (the rule before it). The
+sparsities are the engine's own (``EstimateInfo.start_sparsity``).
 
 One JSON row per case goes to ``--out`` (appended); ``benchmarks/results/second-start.md``
 has the table made from such rows.
@@ -34,7 +35,7 @@ def one_case(case: dict) -> dict:
     from napari_edgecme.core.progress import drive
 
     blurred, sharp, truth = lai_load(case)
-    polishes = []  # (run, unpolished, polished, latent) of every polish
+    polishes = []  # (run, unpolished, polished, latent) of every polish, in order
     original = estimate._polish
 
     def recording_polish(run, motion, step, total, *args):
@@ -57,14 +58,15 @@ def one_case(case: dict) -> dict:
     candidates = polishes[:2]  # the second start's: the first start's, then the second's
     run = candidates[0][0]
     level = run.finest
+    # the L0 costs on the interior the sparsities were compared on (that of the larger PSF)
     band = max(p.rescale(level.shape).psf_size() for _, _, p, _ in candidates) // 2 + 2
-    for key, (_, unpolished, polished, latent) in zip(("first", "second"), candidates,
-                                                       strict=True):
+    for key, (_, unpolished, polished, _), sparsity in zip(
+            ("first", "second"), candidates, est.info.start_sparsity, strict=True):
         final = polished.compact().recentred().rescale(blurred.shape[:2])
         row[key] = {
             "extent": final.blur_extent(), "ncc": motion_psf_ncc(final, truth),
             "psnr": aligned_psnr(deconvolve(blurred, final), sharp, rotation=True),
-            "sparsity": estimate.gradient_sparsity(latent, band),
+            "sparsity": sparsity,
             "l0_unpolished": drive(estimate.iter_l0_cost(level, unpolished, run.lambda_f,
                                                          band))}
     return row

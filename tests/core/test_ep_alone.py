@@ -305,6 +305,15 @@ def _one_level_xu_run(seed: int, iterations: int):
     return case, truth, run
 
 
+def _turned(motion):
+    """``motion`` with its path turned by 90 degrees (tilts swapped, one negated): a
+    wrong motion of the same length and dwell times."""
+    from napari_edgecme.core.motion import CameraMotion
+
+    return CameraMotion(motion.model, motion.intrinsics,
+                        motion.poses[:, [1, 0, 2]] * [1, -1, 1], motion.weights)
+
+
 @pytest.mark.parametrize("seed", [3, 4])
 @pytest.mark.parametrize("right_first", [True, False], ids=["right-first", "right-second"])
 def test_the_second_start_keeps_the_estimate_with_the_sparser_latent(seed, right_first):
@@ -314,12 +323,10 @@ def test_the_second_start_keeps_the_estimate_with_the_sparser_latent(seed, right
     true path and from it turned by 90 degrees (PSF NCC 0.1 to the truth; three
     alternations bring it to 0.27-0.29 only), the sparsity picks the right one in
     either order, and the estimate kept has NCC >= 0.8."""
-    from napari_edgecme.core.motion import CameraMotion
     from napari_edgecme.core.progress import drive
 
     case, truth, run = _one_level_xu_run(seed, 3)
-    turned = CameraMotion(truth.model, truth.intrinsics,
-                          truth.poses[:, [1, 0, 2]] * [1, -1, 1], truth.weights)
+    turned = _turned(truth)
     assert motion_psf_ncc(turned, case.motion) < 0.2
     first, second = (truth, turned) if right_first else (turned, truth)
     first_estimate, latent, _ = drive(run.iterate(0, 3, start=first))
@@ -358,12 +365,10 @@ def test_gradient_sparsity_is_lower_for_the_sharp_image_than_for_blur_or_ringing
     a deconvolution of the blurred scene with a wrong motion (the path turned by 90
     degrees), whose ringing adds gradients; it is scale-free."""
     from napari_edgecme.core.deconv import deconvolve
-    from napari_edgecme.core.motion import CameraMotion
 
     case, _ = _shaken("rotation", 11, seed)
     truth = case.motion
-    turned = CameraMotion(truth.model, truth.intrinsics,
-                          truth.poses[:, [1, 0, 2]] * [1, -1, 1], truth.weights)
+    turned = _turned(truth)
     band = truth.psf_size() // 2 + 2
     right = estimate.gradient_sparsity(deconvolve(case.blurred, truth), band)
     wrong = estimate.gradient_sparsity(deconvolve(case.blurred, turned), band)
