@@ -59,7 +59,7 @@ def one_case(case: dict) -> dict:
     run = candidates[0][0]
     level = run.finest
     # the L0 costs on the interior the sparsities were compared on (that of the larger PSF)
-    band = max(p.rescale(level.shape).psf_size() for _, _, p, _ in candidates) // 2 + 2
+    band = estimate.interior_band(level.shape, *(p for _, _, p, _ in candidates))
     for key, (_, unpolished, polished, _), sparsity in zip(
             ("first", "second"), candidates, est.info.start_sparsity, strict=True):
         final = polished.compact().recentred().rescale(blurred.shape[:2])

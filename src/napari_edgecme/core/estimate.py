@@ -730,7 +730,7 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
                      "compare the two", n_scales=len(run.scales)))
         polished.append((polished_motion, polished_latent))
     # both on the same interior: that of the larger PSF
-    band = max(m.rescale(run.finest.shape).psf_size() for m, _ in polished) // 2 + 2
+    band = interior_band(run.finest.shape, *(m for m, _ in polished))
     first_sparsity, second_sparsity = (gradient_sparsity(f, band) for _, f in polished)
     if not (math.isfinite(first_sparsity) and math.isfinite(second_sparsity)):
         return motion, latent, None, step, total
@@ -823,6 +823,15 @@ def _trusted(profiles, need: int):
     return profiles.select(trusted) if trusted.sum() >= need else profiles
 
 
+def interior_band(shape, *motions: CameraMotion) -> int:
+    """Border (px) left out when images made with ``motions`` are compared on ``shape``.
+
+    Half the largest PSF side of the motions at that shape, plus 2: inside it, no pixel
+    of a latent or of its re-blur depends on the boundary condition of any of them.
+    """
+    return max(m.rescale(shape).psf_size() for m in motions) // 2 + 2
+
+
 def blind_costs(level: Level, motion: CameraMotion, lambda_f: float) -> tuple[float, float]:
     """:func:`iter_blind_costs` run to its end."""
     return drive(iter_blind_costs(level, motion, lambda_f))
@@ -841,7 +850,7 @@ def iter_l0_cost(level: Level, motion: CameraMotion, lambda_f: float, band: int 
 
     g = level.blurred
     k = motion.rescale(level.shape)
-    band = k.psf_size() // 2 + 2 if band is None else band
+    band = interior_band(level.shape, k) if band is None else band
     if min(g.shape) - 2 * band < _MIN_INTERIOR:
         return float("nan")
     inner = (slice(band, -band), slice(band, -band))
@@ -865,7 +874,7 @@ def iter_blind_costs(level: Level, motion: CameraMotion, lambda_f: float):
     (cost of ``motion``, cost of the identity)
         Both NaN when the level has no interior left to compare on.
     """
-    band = motion.rescale(level.shape).psf_size() // 2 + 2
+    band = interior_band(level.shape, motion)
     first = yield from iter_l0_cost(level, motion, lambda_f, band)
     if not math.isfinite(first):
         return float("nan"), float("nan")
