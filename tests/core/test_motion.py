@@ -187,3 +187,16 @@ def test_bad_motion_arguments_name_the_parameter(cam, kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         CameraMotion(**args)
+
+
+def test_mass_radius_ignores_a_faint_stray_pose(cam):
+    # a delta with 90 % of the weight and a stray pose 9 px away: the extent's radius
+    # reads the stray pose, the 80 % mass radius only the centroid's offset from the delta
+    m = CameraMotion("translation", cam, [[0, 0], [9, 0]], [0.9, 0.1])
+    assert m.max_displacement() == pytest.approx(8.1)
+    assert m.mass_radius(0.8) == pytest.approx(0.9)
+    # an even path: both radii are its half-length
+    even = CameraMotion("translation", cam, [[0, 0], [10, 0]], [1, 1])
+    assert even.mass_radius(0.8) == pytest.approx(5.0) == even.max_displacement()
+    with pytest.raises(ValueError, match="share"):
+        m.mass_radius(0)

@@ -128,6 +128,16 @@ _MAX_ITER = 1000  # cap on n_iter (alternations per scale)
 #: An estimate whose blur extent (px of the working copy, :meth:`CameraMotion.max_displacement`)
 #: is below this has collapsed to the no-blur solution.
 COLLAPSE_EXTENT = 2.0
+#: Xu and Xu+Ep also restart when :data:`COLLAPSE_MASS_SHARE` of the estimate's weight
+#: lies within this radius (px of the working copy, :meth:`CameraMotion.mass_radius`) of
+#: its centroid: a delta with a few stray poses far from it, which the extent misses
+#: (``lai`` saturated_03_gyro2: extent 9.6 px, 80 % of the weight within 2.4 px; the
+#: restart's estimate deblurs it by 7.4 dB instead of 0.1; the true motions of ``lai``
+#: hold 80 % within 5.5-9.7 px). The restart is then kept only if its latent has the
+#: sparser gradients (:func:`gradient_sparsity`), as for Xu+Ep's second start: a small
+#: true blur has a small radius too. See ``benchmarks/results/collapse-radius.md``.
+COLLAPSE_MASS_RADIUS = 2.5
+COLLAPSE_MASS_SHARE = 0.8
 #: After a collapse the estimation restarts once with ``lambda_f`` times this.
 _RESTART_LAMBDA_F = 3.0
 #: "No blur found" when the L0 cost of the estimate exceeds the identity's by this factor
@@ -436,15 +446,36 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
         # -- collapse to no blur: restart once from a wide motion, with a stronger L0
         # weight (the sharp-edged latent then has to be explained by the blur)
         extent = motion.max_displacement()
-        if extent < COLLAPSE_EXTENT and not constant:
+        # Xu, Xu+Ep: a collapse that the extent misses -- nearly all the weight on one
+        # pose, the rest on stray poses far from it
+        radius = motion.mass_radius(COLLAPSE_MASS_SHARE) if method != "ep" else math.inf
+        collapsed = extent < COLLAPSE_EXTENT
+        if (collapsed or radius < COLLAPSE_MASS_RADIUS) and not constant:
             info.restarts += 1
             total += sum(level_iters)
-            yield Progress("estimate", step, total, f"no blur found (extent {extent:.1f} px): "
-                           "restarting from a wider motion", n_scales=len(scales))
+            found = (f"no blur found (extent {extent:.1f} px)" if collapsed else
+                     f"a collapsed estimate ({COLLAPSE_MASS_SHARE:.0%} of its weight within "
+                     f"{radius:.1f} px)")
+            yield Progress("estimate", step, total, f"{found}: restarting from a wider "
+                           "motion", n_scales=len(scales))
             again, again_latent, step = yield from run.iterate(
                 step, total, wide_start=True, lambda_f_factor=_RESTART_LAMBDA_F)
-            if again.max_displacement() > extent:
-                motion, latent = again, again_latent
+            if collapsed:
+                if again.max_displacement() > extent:
+                    motion, latent = again, again_latent
+            elif again.max_displacement() >= COLLAPSE_EXTENT:
+                # the first estimate is a blur too: keep the sparser latent's
+                sparsity, both, step, total = yield from _polish_both(
+                    run, motion, again, "restart", step, total)
+                if sparsity is not None:
+                    won = sparsity[1] < sparsity[0]
+                    info.message += (f"restarted after {found}; the "
+                                     f"{'restart' if won else 'first estimate'} won "
+                                     f"(gradient sparsity {sparsity[1]:.4g} vs "
+                                     f"{sparsity[0]:.4g}); ")
+                    if won:
+                        motion, latent = again, again_latent
+                    polished = both[1] if won else both[0]
         if ep_start is not None:
             motion, latent, polished, step, total = yield from _second_start(
                 run, ep_start, motion, latent, info, step, total)
@@ -720,27 +751,44 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
                                                           label=label)
     if other.max_displacement() < COLLAPSE_EXTENT:
         return motion, latent, None, step, total
-    updates = max(1, POLISH_UPDATES)
-    total += 2 * updates
-    polished = []
-    for which, candidate in (("first", motion), ("second", other)):
-        polished_motion, polished_latent, step = yield from relay_as(
-            _polish(run, candidate, step, total, updates),
-            Progress("estimate", step, total, f"{label}: polishing the {which} estimate to "
-                     "compare the two", n_scales=len(run.scales)))
-        polished.append((polished_motion, polished_latent))
-    # both on the same interior: that of the larger PSF
-    band = interior_band(run.finest.shape, *(m for m, _ in polished))
-    first_sparsity, second_sparsity = (gradient_sparsity(f, band) for _, f in polished)
-    if not (math.isfinite(first_sparsity) and math.isfinite(second_sparsity)):
+    sparsity, polished, step, total = yield from _polish_both(run, motion, other, label,
+                                                               step, total)
+    if sparsity is None:
         return motion, latent, None, step, total
-    info.start_sparsity = (first_sparsity, second_sparsity)
+    info.start_sparsity = sparsity
+    first_sparsity, second_sparsity = sparsity
     if second_sparsity < first_sparsity:
         info.start = "edge profiles"
         info.message += (f"the start from the edge profiles' estimate won (gradient "
                          f"sparsity {second_sparsity:.4g} vs {first_sparsity:.4g}); ")
         return other, other_latent, polished[1], step, total
     return motion, latent, polished[0], step, total
+
+
+def _polish_both(run: _CoarseToFine, first: CameraMotion, second: CameraMotion, label: str,
+                 step: int, total: int):
+    """Polish two candidate estimates and measure their latents' gradient sparsity.
+
+    Each is polished (:func:`_polish`, at least one update) and the
+    :func:`gradient_sparsity` of its polish's latent is taken on the interior of the
+    larger PSF, the same for both. A generator of progress records returning
+    ``(sparsity, polished, step, total)``: ``(first, second)`` sparsities (None when
+    either cannot be measured) and the two polishes ``(motion, latent)``.
+    """
+    updates = max(1, POLISH_UPDATES)
+    total += 2 * updates
+    polished = []
+    for which, candidate in (("first", first), ("second", second)):
+        polished_motion, polished_latent, step = yield from relay_as(
+            _polish(run, candidate, step, total, updates),
+            Progress("estimate", step, total, f"{label}: polishing the {which} estimate to "
+                     "compare the two", n_scales=len(run.scales)))
+        polished.append((polished_motion, polished_latent))
+    band = interior_band(run.finest.shape, *(m for m, _ in polished))
+    sparsity = tuple(gradient_sparsity(f, band) for _, f in polished)
+    if not all(math.isfinite(x) for x in sparsity):
+        sparsity = None
+    return sparsity, polished, step, total
 
 
 #: MDF updates of the polish that ends Xu and Xu+Ep (0: none). Each solves the method's
