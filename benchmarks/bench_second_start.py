@@ -1,9 +1,10 @@
-"""Xu+Ep's second start: both candidates scored, to study the rule that picks one.
+"""Xu+Ep's second start: its candidates scored, to study the rule that picks one.
 
 For every ``lai`` case (``--quick``: those of ``quick.txt``; ``--cases``: a list) Xu+Ep
 runs as the ``lai`` suite runs it (told the case's max blur and the true focal length,
 seed 0). Where its profiles pass the gate, ``estimate._second_start`` polishes the two
-starts' estimates (``estimate._polish``) to compare them; this script records both
+starts' estimates (``estimate._polish``), and the EpAlone estimate itself when the edges
+are steps (``estimate.EP_CANDIDATE``), to compare them; this script records the
 polished candidates (and the unpolished ones they came from), deconvolves each with the
 default deconvolution and scores it as the suite does (aligned PSNR with rotation, PSF
 NCC), and records for each the criteria a rule could use: the gradient sparsity of its
@@ -55,13 +56,17 @@ def one_case(case: dict) -> dict:
            "final_ncc": motion_psf_ncc(est.motion, truth)}
     if est.info.start_sparsity is None:  # no second start, or no comparison
         return row
-    candidates = polishes[:2]  # the second start's: the first start's, then the second's
+    # the second start's, the last polishes run (a collapse restart polishes two before
+    # them; the estimate kept is not polished again): the first start's, the second's,
+    # and the EpAlone estimate's when it was a candidate (estimate.EP_CANDIDATE)
+    candidates = polishes[-len(est.info.start_sparsity):]
     run = candidates[0][0]
     level = run.finest
     # the L0 costs on the interior the sparsities were compared on (that of the larger PSF)
     band = estimate.interior_band(level.shape, *(p for _, _, p, _ in candidates))
     for key, (_, unpolished, polished, _), sparsity in zip(
-            ("first", "second"), candidates, est.info.start_sparsity, strict=True):
+            ("first", "second", "ep")[:len(candidates)], candidates,
+            est.info.start_sparsity, strict=True):
         final = polished.compact().recentred().rescale(blurred.shape[:2])
         row[key] = {
             "extent": final.blur_extent(), "ncc": motion_psf_ncc(final, truth),
@@ -89,7 +94,7 @@ def main(argv=None) -> int:
         for row in pool.map(one_case, cases):
             out.write(json.dumps(row) + "\n")
             out.flush()
-            print(row["name"], row.get("first", {}).get("psnr"), row.get("second", {}).get("psnr"),
+            print(row["name"], *(row.get(k, {}).get("psnr") for k in ("first", "second", "ep")),
                   file=sys.stderr, flush=True)
     return 0
 

@@ -841,9 +841,13 @@ def test_the_summary_says_when_xu_ep_kept_the_start_from_the_profiles():
     plain = estimate_summary(MotionEstimate(motion, None, None, info), "xu+ep", 9.0, "default")
     info.start = "edge profiles"
     kept = estimate_summary(MotionEstimate(motion, None, None, info), "xu+ep", 9.0, "default")
-    assert "start" not in plain
+    info.start = "EpAlone"
+    own = estimate_summary(MotionEstimate(motion, None, None, info), "xu+ep", 9.0, "default")
+    assert "start" not in plain and "own" not in plain
     assert kept == plain.replace(", 0.0 s)", ", kept the start from the profiles' estimate, "
                                                "0.0 s)")
+    assert own == plain.replace(", 0.0 s)", ", kept the profiles' own estimate (polished), "
+                                              "0.0 s)")
 
 
 def test_the_summary_says_which_profile_model_epalone_kept():

@@ -358,6 +358,62 @@ def test_the_second_start_follows_the_sparsity_not_the_order(sparsities, kept, m
     assert ("won (gradient sparsity" in info.message) == (kept == "edge profiles")
 
 
+@pytest.mark.parametrize("sparsities, kept", [((0.30, 0.31, 0.29), "EpAlone"),
+                                              ((0.30, 0.29, 0.31), "edge profiles"),
+                                              ((0.29, 0.31, 0.30), "blob")])
+def test_with_the_epalone_candidate_the_lowest_of_three_sparsities_wins(sparsities, kept,
+                                                                         monkeypatch):
+    """The EpAlone estimate itself, offered as a third candidate (``EP_CANDIDATE``), is
+    kept when its polished latent is the sparsest -- and then handed on polished, as it
+    has no alternation of its own; the message names the winner unless it is the blob."""
+    from napari_edgecme.core.progress import drive
+
+    case, truth, run = _one_level_xu_run(3, 1)
+    first_estimate, latent, _ = drive(run.iterate(0, 1, start=truth))
+    values = iter(sparsities)
+    monkeypatch.setattr(estimate, "gradient_sparsity", lambda latent, band: next(values))
+    info = estimate.EstimateInfo("xu+ep", "rotation", 13.0, truth.intrinsics.focal_px, 1.0)
+    turned = _turned(truth)
+    motion, latent, (polished, polished_latent), _, _ = drive(estimate._second_start(
+        run, truth, first_estimate, latent, info, 0, 1, candidate=turned))
+    assert info.start == kept and info.start_sparsity == sparsities
+    assert ("won (gradient sparsity" in info.message) == (kept != "blob")
+    if kept == "EpAlone":
+        assert "own estimate, polished" in info.message
+        assert motion is polished and latent is polished_latent
+    else:
+        assert motion_psf_ncc(motion, case.motion) >= 0.8
+
+
+def _offered_candidate(case, profiles, monkeypatch) -> list:
+    """Run Xu+Ep briefly and return what its second start was offered as ``candidate``."""
+    offered = []
+    original = estimate._second_start
+
+    def spy(*args, candidate=None, **kwargs):
+        offered.append(candidate)
+        return (yield from original(*args, candidate=candidate, **kwargs))
+
+    monkeypatch.setattr(estimate, "_second_start", spy)
+    estimate_motion(case.blurred, "xu+ep", "rotation", 13, case.motion.intrinsics.focal_px,
+                    profiles=profiles, n_iter=1, rng=0)
+    return offered
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_the_epalone_candidate_is_offered_on_step_edges_only(seed, monkeypatch):
+    """EpAlone's own test of the profile model decides: on the scene of ideal step edges
+    the step model fits better and the EpAlone estimate (close to the truth) is a third
+    candidate; on the same scene with soft edges the spread model fits better, the step
+    fit is a blob (see the soft-edge test above), and it is not offered."""
+    case, prof = _shaken("rotation", 11, seed)
+    offered = _offered_candidate(case, prof, monkeypatch)
+    assert len(offered) == 1 and offered[0] is not None
+    assert motion_psf_ncc(offered[0], case.motion) >= 0.8
+    soft_case, soft_prof = _soft_shaken(seed)
+    assert _offered_candidate(soft_case, soft_prof, monkeypatch) == [None]
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_gradient_sparsity_is_lower_for_the_sharp_image_than_for_blur_or_ringing(seed):
     """The l1/l2 ratio of the gradients (Krishnan et al. 2011) that compares the two

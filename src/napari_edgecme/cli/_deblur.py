@@ -98,8 +98,11 @@ def estimate_summary(result, requested: str, max_blur: float, focal_source: str)
                         else ""))
     if info.profile_model():  # which profile model EpAlone kept
         text += f", fitted as {info.profile_model()}"
-    if getattr(info, "start", "blob") == "edge profiles":
+    start = getattr(info, "start", "blob")
+    if start == "edge profiles":
         text += ", kept the start from the profiles' estimate"
+    elif start == "EpAlone":
+        text += ", kept the profiles' own estimate (polished)"
     text += f", {info.seconds:.1f} s)"
     if not info.converged:
         text += f"; {info.message}"

@@ -177,11 +177,13 @@ class EstimateInfo:
     #: the EpAlone check on its profiles (:data:`XU_EP_GATE`)
     profile_misfit: float | None = None
     #: Xu+Ep: the start of the estimate kept, "blob" (the small blob of
-    #: :func:`~.pyramid.initial_weights`) or "edge profiles" (the EpAlone estimate of its
-    #: gate, :data:`SECOND_START`), and the gradient sparsity of the two starts' polished
-    #: latents (:func:`gradient_sparsity`; the lower is kept)
+    #: :func:`~.pyramid.initial_weights`), "edge profiles" (the alternation from the
+    #: EpAlone estimate of its gate, :data:`SECOND_START`) or "EpAlone" (that estimate
+    #: itself, when the photo's edges are steps: :data:`EP_CANDIDATE`), and the gradient
+    #: sparsity of the candidates' polished latents in that order (:func:`gradient_sparsity`;
+    #: the lowest is kept)
     start: str = "blob"
-    start_sparsity: tuple[float, float] | None = None
+    start_sparsity: tuple[float, ...] | None = None
     #: EpAlone: the edge spread (px of the working copy) of the profile model whose
     #: estimate was kept, 0 for ideal steps (:data:`~.profile_fit.EP_EDGE_SPREAD`)
     edge_spread: float = 0.0
@@ -368,6 +370,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     yield Progress("estimate", step, total, "preparing", n_scales=len(scales))
     work_profiles = None
     ep_start = None  # Xu+Ep: the EpAlone estimate of its gate, the second start
+    ep_candidate = None  # Xu+Ep: the same, a candidate itself when the edges are steps
     polished = None  # Xu+Ep: the polish of the start kept, done to compare the two
     if method != "xu":
         if profiles is None:
@@ -423,6 +426,11 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                     info.message = "ran as 'xu' (the edge profiles disagree); "
                 elif SECOND_START:
                     ep_start = gate_motion
+                    if EP_CANDIDATE:  # are the photo's edges steps? (EpAlone's own test)
+                        total += sum(ep_iters)
+                        kept, step = yield from _soft_edges(check, check.info, step, total)
+                        if kept is check:
+                            ep_candidate = gate_motion
 
     # -- coarse to fine ------------------------------------------------------------
     run = _CoarseToFine(work, intr_work, model, blur_work, scales, level_iters, method,
@@ -465,8 +473,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                     motion, latent = again, again_latent
             elif again.max_displacement() >= COLLAPSE_EXTENT:
                 # the first estimate is a blur too: keep the sparser latent's
-                sparsity, both, step, total = yield from _polish_both(
-                    run, motion, again, "restart", step, total)
+                sparsity, both, step, total = yield from _polish_candidates(
+                    run, (motion, again), "restart", step, total)
                 if sparsity is not None:
                     won = sparsity[1] < sparsity[0]
                     info.message += (f"restarted after {found}; the "
@@ -478,7 +486,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                     polished = both[1] if won else both[0]
         if ep_start is not None:
             motion, latent, polished, step, total = yield from _second_start(
-                run, ep_start, motion, latent, info, step, total)
+                run, ep_start, motion, latent, info, step, total, candidate=ep_candidate)
         info.converged = True
         info.message += "completed all scales"
     except StopRequested:
@@ -689,6 +697,16 @@ def _soft_edges(run: _CoarseToFine, info: EstimateInfo, step: int, total: int):
 #: projections); the alternation from it thins it. See
 #: ``benchmarks/results/second-start.md``.
 SECOND_START = True
+#: ... and, when the photo's edges are steps -- EpAlone's soft-edge model
+#: (:data:`~.profile_fit.EP_EDGE_SPREAD`) fits the profiles more than
+#: :data:`~.profile_fit.EP_SPREAD_TOLERANCE` times worse than ideal steps -- the EpAlone
+#: estimate itself, polished, is a third candidate. Step edges are where the profiles
+#: measure the PSF's projections best (text, man-made scenes), and there the alternation
+#: drifted from a good EpAlone estimate (``lai`` text_01_gyro4: EpAlone 22.87 dB, Xu+Ep
+#: 18.66). Against soft edges the thick EpAlone estimate still won the sparsity contest
+#: but deblurred worse (natural_02_gyro3 -5.0 dB), so it is not offered there. See
+#: ``benchmarks/results/ep-candidate.md``.
+EP_CANDIDATE = True
 
 
 def gradient_sparsity(latent: np.ndarray, band: int) -> float:
@@ -730,16 +748,19 @@ def gradient_sparsity(latent: np.ndarray, band: int) -> float:
 
 
 def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion, latent,
-                  info: EstimateInfo, step: int, total: int):
-    """The finest-scale alternation of ``run`` again, from ``start``; the better of the two.
+                  info: EstimateInfo, step: int, total: int, *,
+                  candidate: CameraMotion | None = None):
+    """The finest-scale alternation of ``run`` again, from ``start``; the best estimate.
 
-    Both estimates are polished (:func:`_polish`, at least one update) and compared by
-    the :func:`gradient_sparsity` of their polish's latents, on the interior of the
-    larger PSF. A generator of progress records returning ``(motion, latent, polished,
-    step, total)``: the estimate kept (before its polish, for the no-blur test), its
-    alternation's latent, and its polish ``(motion, latent)`` -- None when the first
-    estimate is kept because the second collapsed to no blur or the comparison could not
-    be made.
+    The candidates are the first start's estimate ``motion``, the second start's, and
+    ``candidate`` when given (the EpAlone estimate itself: :data:`EP_CANDIDATE`). Each
+    is polished (:func:`_polish`, at least one update) and they are compared by the
+    :func:`gradient_sparsity` of their polish's latents, on the interior of the largest
+    PSF. A generator of progress records returning ``(motion, latent, polished, step,
+    total)``: the estimate kept (before its polish, for the no-blur test; ``candidate``
+    has no alternation of its own and is handed on polished), its latent, and its polish
+    ``(motion, latent)`` -- None when the first estimate is kept because the second collapsed to
+    no blur or the comparison could not be made.
     """
     level_iters = run.level_iters[-1]
     total += level_iters
@@ -751,38 +772,44 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
                                                           label=label)
     if other.max_displacement() < COLLAPSE_EXTENT:
         return motion, latent, None, step, total
-    sparsity, polished, step, total = yield from _polish_both(run, motion, other, label,
-                                                               step, total)
+    candidates = (motion, other) if candidate is None else (motion, other, candidate)
+    sparsity, polished, step, total = yield from _polish_candidates(run, candidates, label,
+                                                                    step, total)
     if sparsity is None:
         return motion, latent, None, step, total
     info.start_sparsity = sparsity
-    first_sparsity, second_sparsity = sparsity
-    if second_sparsity < first_sparsity:
+    best = int(np.argmin(sparsity))
+    if best == 0:
+        return motion, latent, polished[0], step, total
+    others = ", ".join(f"{x:.4g}" for k, x in enumerate(sparsity) if k != best)
+    if best == 1:
         info.start = "edge profiles"
         info.message += (f"the start from the edge profiles' estimate won (gradient "
-                         f"sparsity {second_sparsity:.4g} vs {first_sparsity:.4g}); ")
+                         f"sparsity {sparsity[1]:.4g} vs {others}); ")
         return other, other_latent, polished[1], step, total
-    return motion, latent, polished[0], step, total
+    info.start = "EpAlone"
+    info.message += (f"the edge profiles' own estimate, polished, won (gradient sparsity "
+                     f"{sparsity[2]:.4g} vs {others}); ")
+    return polished[2][0], polished[2][1], polished[2], step, total
 
 
-def _polish_both(run: _CoarseToFine, first: CameraMotion, second: CameraMotion, label: str,
-                 step: int, total: int):
-    """Polish two candidate estimates and measure their latents' gradient sparsity.
+def _polish_candidates(run: _CoarseToFine, candidates, label: str, step: int, total: int):
+    """Polish candidate estimates and measure their latents' gradient sparsity.
 
     Each is polished (:func:`_polish`, at least one update) and the
     :func:`gradient_sparsity` of its polish's latent is taken on the interior of the
-    larger PSF, the same for both. A generator of progress records returning
-    ``(sparsity, polished, step, total)``: ``(first, second)`` sparsities (None when
-    either cannot be measured) and the two polishes ``(motion, latent)``.
+    largest PSF, the same for all. A generator of progress records returning
+    ``(sparsity, polished, step, total)``: the candidates' sparsities in their order
+    (None when any cannot be measured) and their polishes ``(motion, latent)``.
     """
     updates = max(1, POLISH_UPDATES)
-    total += 2 * updates
+    total += len(candidates) * updates
     polished = []
-    for which, candidate in (("first", first), ("second", second)):
+    for which, candidate in enumerate(candidates):
         polished_motion, polished_latent, step = yield from relay_as(
             _polish(run, candidate, step, total, updates),
-            Progress("estimate", step, total, f"{label}: polishing the {which} estimate to "
-                     "compare the two", n_scales=len(run.scales)))
+            Progress("estimate", step, total, f"{label}: polishing estimate {which + 1} of "
+                     f"{len(candidates)} to compare them", n_scales=len(run.scales)))
         polished.append((polished_motion, polished_latent))
     band = interior_band(run.finest.shape, *(m for m, _ in polished))
     sparsity = tuple(gradient_sparsity(f, band) for _, f in polished)
