@@ -414,6 +414,23 @@ def test_the_epalone_candidate_is_offered_on_step_edges_only(seed, monkeypatch):
     assert _offered_candidate(soft_case, soft_prof, monkeypatch) == [None]
 
 
+@pytest.mark.parametrize("seed", [3, 4])
+def test_the_epalone_candidate_is_not_offered_when_the_normals_are_nearly_parallel(
+        seed, monkeypatch):
+    """The same step edges, keeping only the profiles whose normals lie within 29 degrees
+    of one direction: they pass the gate (they agree on one motion) and start the second
+    start, but EpAlone's orientation check refuses them, since they cannot see the motion
+    along the edges, so their estimate is not a candidate of its own."""
+    from napari_edgecme.core.profile_fit import check_coverage
+
+    case, prof = _shaken("rotation", 11, seed)
+    angle = np.mod(prof.normal_angle, np.pi)
+    parallel = prof.select(np.abs(np.mod(angle, np.pi) - np.pi / 2) < 0.5)
+    with pytest.raises(ValueError, match="nearly parallel"):
+        check_coverage(parallel)
+    assert _offered_candidate(case, parallel, monkeypatch) == [None]
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_gradient_sparsity_is_lower_for_the_sharp_image_than_for_blur_or_ringing(seed):
     """The l1/l2 ratio of the gradients (Krishnan et al. 2011) that compares the two

@@ -426,7 +426,9 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                     info.message = "ran as 'xu' (the edge profiles disagree); "
                 elif SECOND_START:
                     ep_start = gate_motion
-                    if EP_CANDIDATE:  # are the photo's edges steps? (EpAlone's own test)
+                    # are the photo's edges steps, and do the normals span the plane?
+                    # (EpAlone's own tests)
+                    if EP_CANDIDATE and _spanning(work_profiles):
                         total += sum(ep_iters)
                         kept, step = yield from _soft_edges(check, check.info, step, total)
                         if kept is check:
@@ -705,7 +707,9 @@ SECOND_START = True
 #: drifted from a good EpAlone estimate (``lai`` text_01_gyro4: EpAlone 22.87 dB, Xu+Ep
 #: 18.66). Against soft edges the thick EpAlone estimate still won the sparsity contest
 #: but deblurred worse (natural_02_gyro3 -5.0 dB), so it is not offered there. See
-#: ``benchmarks/results/ep-candidate.md``.
+#: ``benchmarks/results/ep-candidate.md``. Nor is it offered when the profiles' normals
+#: are nearly parallel (EpAlone refuses such a set: :func:`~.profile_fit.check_coverage`),
+#: as they fix the path only across one direction (natural_03_gyro4: -1.2 dB with it).
 EP_CANDIDATE = True
 
 
@@ -889,6 +893,16 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int,
 #: (:attr:`EdgeProfiles.confidence`), when enough of them remain: its edge-profile term
 #: pulls the whole alternation, and a false profile pulls it the wrong way.
 XU_EP_MIN_CONFIDENCE = 0.7
+
+
+def _spanning(profiles) -> bool:
+    """Whether the profiles' normals pass EpAlone's orientation check
+    (:func:`~.profile_fit.check_coverage`)."""
+    try:
+        check_coverage(profiles)
+    except ValueError:
+        return False
+    return True
 
 
 def _trusted(profiles, need: int):
