@@ -179,9 +179,9 @@ class EstimateInfo:
     #: Xu+Ep: the start of the estimate kept, "blob" (the small blob of
     #: :func:`~.pyramid.initial_weights`), "edge profiles" (the alternation from the
     #: EpAlone estimate of its gate, :data:`SECOND_START`) or "EpAlone" (that estimate
-    #: itself, when the photo's edges are steps: :data:`EP_CANDIDATE`), and the gradient
-    #: sparsity of the candidates' polished latents in that order (:func:`gradient_sparsity`;
-    #: the lowest is kept)
+    #: itself, on step edges whose normals span the plane: :data:`EP_CANDIDATE`), and the
+    #: gradient sparsity of the candidates' polished latents in that order
+    #: (:func:`gradient_sparsity`; the lowest is kept)
     start: str = "blob"
     start_sparsity: tuple[float, ...] | None = None
     #: EpAlone: the edge spread (px of the working copy) of the profile model whose
@@ -370,8 +370,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     yield Progress("estimate", step, total, "preparing", n_scales=len(scales))
     work_profiles = None
     ep_start = None  # Xu+Ep: the EpAlone estimate of its gate, the second start
-    ep_candidate = None  # Xu+Ep: the same, a candidate itself when the edges are steps
-    polished = None  # Xu+Ep: the polish of the start kept, done to compare the two
+    ep_candidate = None  # Xu+Ep: the same, a candidate itself (EP_CANDIDATE)
+    polished = None  # Xu+Ep: the polish of the estimate kept, done to compare the candidates
     if method != "xu":
         if profiles is None:
             from .edges import iter_extract_edge_profiles
@@ -763,8 +763,8 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
     PSF. A generator of progress records returning ``(motion, latent, polished, step,
     total)``: the estimate kept (before its polish, for the no-blur test; ``candidate``
     has no alternation of its own and is handed on polished), its latent, and its polish
-    ``(motion, latent)`` -- None when the first estimate is kept because the second collapsed to
-    no blur or the comparison could not be made.
+    ``(motion, latent)`` -- None when the first estimate is kept because the second
+    collapsed to no blur or the comparison could not be made.
     """
     level_iters = run.level_iters[-1]
     total += level_iters
