@@ -56,9 +56,11 @@ def test_levin_suite_reads_a_capture_and_its_correlation_kernel(tmp_path):
     from napari_edgecme.core.operators import blur
 
     assert np.abs(blur(sharp, motion, "exact") - blurred)[8:-8, 8:-8].max() < 1e-6
-    md, _ = _suites.run_suite("levin", tmp_path / "out", data=data, methods=("xu",),
-                               n_iter=1)
+    md, js = _suites.run_suite("levin", tmp_path / "out", data=data, methods=("xu",),
+                                n_iter=1)
     assert "anchor protocol" in md.read_text()
+    # told the kernel's size as the benchmark states it (sizeL: the taps' 5 px box here)
+    assert json.loads(js.read_text())["cases"][0]["max_blur"] == 5.0
 
 
 def test_real_suite_deblurs_through_the_cli_and_draws_a_sheet(tmp_path, case):

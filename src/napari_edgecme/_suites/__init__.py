@@ -183,9 +183,10 @@ def run_suite(suite: str, out="edgecme-bench", *, data=None, quick: bool = False
                 "deconvolution with the true motion." if lai else
                 "Aligned PSNR/SSIM: after the best global sub-pixel shift and in-plane "
                 "rotation, 5% border crop; model `translation`; each estimator told the "
-                "kernel's size as its max blur; the same hyper-Laplacian deconvolution "
-                "after every estimate; oracle = that deconvolution with the kernel `f` "
-                "of the capture (as a correlation kernel).")
+                "kernel's size (the benchmark's sizeL) as its max blur; the same "
+                "hyper-Laplacian deconvolution after every estimate; oracle = that "
+                "deconvolution with the kernel `f` of the capture (as a correlation "
+                "kernel).")
             if suite == "lai-srgb":
                 protocol = ("Cases: each lai case re-rendered in linear light (sharp.png "
                             "linearised, blurred with truth.json, sRGB-encoded, Gaussian "

@@ -85,8 +85,10 @@ def run_truth_case(case: dict, suite: str, workdir: Path, methods, n_iter, log,
     np.save(f"{stem}-blurred.npy", linear)
     truth.save(f"{stem}-truth.json")
     rotation = suite == "lai"
-    if suite == "levin":  # told the kernel's support, as the other methods of Levin's table
-        case["max_blur"] = float(max(truth.psf_size() - 2, 3))
+    if suite == "levin":
+        # told the kernel's size, as the other methods of Levin's table are: the side of
+        # `f` without its zero border (the benchmark's sizeL.mat, 11-25 px)
+        case["max_blur"] = float(truth.psf_size())
         case["extent"] = case["max_blur"]
     focal = truth.intrinsics.focal_px if suite == "lai" else None
 

@@ -26,6 +26,7 @@ from ._validation import check_choice, check_positive
 
 __all__ = [
     "DEFAULT_FOCAL_35MM",
+    "GRID_REACH",
     "MODELS",
     "Intrinsics",
     "PoseGrid",
@@ -38,6 +39,12 @@ __all__ = [
 
 #: The pose models, by name (the names are API and appear in motion files).
 MODELS = ("translation", "inplane", "rotation")
+
+#: Reach of the pose grid on each side of the identity, as a fraction of the max blur. The
+#: estimators keep the MDF's centroid pose at the identity (claims 1-2), and a camera path
+#: is rarely symmetric about its centroid: it lingers at one end and reaches farther on the
+#: other side than half its extent (``benchmarks/bench_grid_reach.py``).
+GRID_REACH = 0.5
 
 #: 35 mm-equivalent focal length (mm) assumed when a photo carries no EXIF focal
 #: length: between a phone's wide lens (26 mm) and a "normal" lens (50 mm).
@@ -381,8 +388,9 @@ def pose_grid(model: str, intrinsics: Intrinsics, max_blur: float,
         Of the image at the resolution the grid is used at (a pyramid level's
         intrinsics give that level's coarser grid).
     max_blur : float
-        Largest blur extent (pixels, at this resolution) the grid must reach: each
-        parameter spans ``+-max_blur / 2`` pixels of motion at the farthest point.
+        Largest blur extent (pixels, at this resolution) the grid must hold: each
+        parameter spans ``+-GRID_REACH * max_blur`` pixels of motion at the farthest
+        point (:data:`GRID_REACH`).
     roll_fraction : float
         The in-plane rotation ``theta_z`` spans this fraction of that extent
         (hand shake rolls less than it pans and tilts).
@@ -394,7 +402,7 @@ def pose_grid(model: str, intrinsics: Intrinsics, max_blur: float,
     check_choice(model, "model", MODELS)
     max_blur = check_positive(max_blur, "max_blur")
     steps = _grid_steps(model, intrinsics)
-    reach = np.full(len(steps), max_blur / 2.0)
+    reach = np.full(len(steps), GRID_REACH * max_blur)
     if model != "translation":
         reach[2] *= roll_fraction
     counts = tuple(int(2 * math.ceil(r - 1e-9) + 1) for r in reach)
