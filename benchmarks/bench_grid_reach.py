@@ -23,37 +23,39 @@ import numpy as np
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
-def reach(motion, shape) -> float:
-    """Largest displacement (px) of a significant pose from the centroid pose."""
-    from napari_edgecme.core.camera import displacements
+def significant_about_centroid(motion):
+    """``motion`` re-centred on its centroid pose, and its poses above the estimators' floor."""
     from napari_edgecme.core.pyramid import WEIGHT_FLOOR
 
     centred = motion.recentred()
-    keep = centred.weights >= WEIGHT_FLOOR * centred.weights.max()
+    return centred, centred.poses[centred.weights >= WEIGHT_FLOOR * centred.weights.max()]
+
+
+def reach(motion, shape) -> float:
+    """Largest displacement (px) of a significant pose from the centroid pose."""
+    from napari_edgecme.core.camera import displacements
+
+    centred, poses = significant_about_centroid(motion)
     rows, cols = np.meshgrid(np.linspace(0, shape[0] - 1, 5), np.linspace(0, shape[1] - 1, 5),
                              indexing="ij")
     points = np.stack([rows.ravel(), cols.ravel()], axis=1)
-    disp = displacements(centred.model, centred.intrinsics, centred.poses[keep], points)
-    return float(np.abs(disp).max())
+    return float(np.abs(displacements(centred.model, centred.intrinsics, poses, points)).max())
 
 
 def on_grid(motion, max_blur: float) -> bool:
     """Whether every significant pose of ``motion`` about its centroid lies on the grid."""
     from napari_edgecme.core.camera import pose_grid
-    from napari_edgecme.core.pyramid import WEIGHT_FLOOR
 
-    centred = motion.recentred()
-    keep = centred.weights >= WEIGHT_FLOOR * centred.weights.max()
+    centred, poses = significant_about_centroid(motion)
     grid = pose_grid(centred.model, centred.intrinsics, max_blur)
     # the roll axis of the rotation models is the grid's narrower one; compare per axis
-    pos = np.abs(centred.poses[keep] / grid.steps)
-    return bool(np.all(pos <= grid.half + 0.5))
+    return bool(np.all(np.abs(poses / grid.steps) <= grid.half + 0.5))
 
 
 def main() -> None:
     from scipy.io import loadmat
 
-    from napari_edgecme._suites._data import lai_cases, lai_load, levin_motion
+    from napari_edgecme._suites._data import lai_cases, lai_load, levin_max_blur, levin_motion
     from napari_edgecme.core.camera import GRID_REACH
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -69,7 +71,7 @@ def main() -> None:
     for k in range(1, 9):
         mat = loadmat(args.levin / f"im01_ker0{k}.mat")
         truth = levin_motion(mat["f"], mat["y"].shape)
-        max_blur = float(truth.psf_size())  # as the levin suite tells it (sizeL)
+        max_blur = levin_max_blur(truth)
         rows.append(("levin", f"ker0{k}", truth.blur_extent(), max_blur,
                      reach(truth, mat["y"].shape), on_grid(truth, max_blur)))
     print(f"GRID_REACH = {GRID_REACH} (the grid spans +-GRID_REACH * max blur about the "

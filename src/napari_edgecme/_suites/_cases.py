@@ -13,7 +13,14 @@ import numpy as np
 
 from .._report import METHOD_NAMES
 from .._worker import run_job, worker_env
-from ._data import LEVIN_ANCHOR_BORDER, LEVIN_ANCHOR_UPSAMPLE, case_gamma, lai_load, levin_load
+from ._data import (
+    LEVIN_ANCHOR_BORDER,
+    LEVIN_ANCHOR_UPSAMPLE,
+    case_gamma,
+    lai_load,
+    levin_load,
+    levin_max_blur,
+)
 
 __all__ = ["COLLAPSE_EXTENT", "FAITHFUL_NCC", "METHODS", "REFERENCES", "TIMEOUT", "method_label",
            "profile_measures", "run_real_photo", "run_truth_case"]
@@ -86,9 +93,7 @@ def run_truth_case(case: dict, suite: str, workdir: Path, methods, n_iter, log,
     truth.save(f"{stem}-truth.json")
     rotation = suite == "lai"
     if suite == "levin":
-        # told the kernel's size, as the other methods of Levin's table are: the side of
-        # `f` without its zero border (the benchmark's sizeL.mat, 11-25 px)
-        case["max_blur"] = float(truth.psf_size())
+        case["max_blur"] = levin_max_blur(truth)
         case["extent"] = case["max_blur"]
     focal = truth.intrinsics.focal_px if suite == "lai" else None
 

@@ -193,6 +193,13 @@ def levin_motion(kernel: np.ndarray, image_shape) -> object:
                         f[rows, cols] / f[rows, cols].sum())
 
 
+def levin_max_blur(truth) -> float:
+    """The max blur a ``levin`` case tells the estimators: the kernel's size, as the other
+    methods of Levin's table are told it (the side of ``f`` without its zero border, the
+    benchmark's ``sizeL.mat``, 11-25 px)."""
+    return float(truth.psf_size())
+
+
 def levin_load(case: dict):
     from scipy.io import loadmat
 

@@ -41,9 +41,11 @@ __all__ = [
 MODELS = ("translation", "inplane", "rotation")
 
 #: Reach of the pose grid on each side of the identity, as a fraction of the max blur. The
-#: estimators keep the MDF's centroid pose at the identity (claims 1-2), and a camera path
-#: is rarely symmetric about its centroid: it lingers at one end and reaches farther on the
-#: other side than half its extent (``benchmarks/bench_grid_reach.py``).
+#: estimators keep the MDF's centroid pose at the identity (claims 1-2); half the max blur
+#: holds a path symmetric about its centroid, while real shakes reach up to 0.58 of their
+#: extent from it (``benchmarks/bench_grid_reach.py``), so a max blur equal to the extent
+#: can clip them. Wider grids were measured and lost on ``lai``, where the max blur has a
+#: margin (``benchmarks/results/grid-reach.md``).
 GRID_REACH = 0.5
 
 #: 35 mm-equivalent focal length (mm) assumed when a photo carries no EXIF focal
