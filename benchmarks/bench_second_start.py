@@ -17,6 +17,7 @@ has the table made from such rows.
 
     python benchmarks/bench_second_start.py [--quick | --cases a b ...] [--jobs 2]
                                             [--out benchmarks/out/second-start.jsonl]
+                                            [--motions DIR]
 """
 
 from __future__ import annotations
@@ -25,10 +26,11 @@ import argparse
 import json
 import sys
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
 
 
-def one_case(case: dict) -> dict:
+def one_case(case: dict, motions: Path | None = None) -> dict:
     import napari_edgecme.core.estimate as estimate
     from napari_edgecme._suites._data import lai_load
     from napari_edgecme.core.deconv import deconvolve
@@ -54,6 +56,8 @@ def one_case(case: dict) -> dict:
            "blurred": aligned_psnr(blurred, sharp, rotation=True),
            "final_psnr": aligned_psnr(deconvolve(blurred, est.motion), sharp, rotation=True),
            "final_ncc": motion_psf_ncc(est.motion, truth)}
+    if motions is not None:
+        est.motion.save(motions / f"{case['name']}-final.json")
     if est.info.start_sparsity is None:  # no second start, or no comparison
         return row
     # the second start's, the last polishes run (a collapse restart polishes two before
@@ -68,6 +72,8 @@ def one_case(case: dict) -> dict:
             ("first", "second", "ep")[:len(candidates)], candidates,
             est.info.start_sparsity, strict=True):
         final = polished.compact().recentred().rescale(blurred.shape[:2])
+        if motions is not None:
+            final.save(motions / f"{case['name']}-{key}.json")
         row[key] = {
             "extent": final.blur_extent(), "ncc": motion_psf_ncc(final, truth),
             "psnr": aligned_psnr(deconvolve(blurred, final), sharp, rotation=True),
@@ -85,13 +91,18 @@ def main(argv=None) -> int:
     parser.add_argument("--cases", nargs="+")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/out/second-start.jsonl"))
+    parser.add_argument("--motions", type=Path,
+                        help="also save every polished candidate's motion here, "
+                             "CASE-{first,second,ep}.json, and the final one, CASE-final.json")
     args = parser.parse_args(argv)
     cases = lai_cases(default_data_dir("lai"), args.quick)
     if args.cases:
         cases = [c for c in cases if c["name"] in set(args.cases)]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(args.jobs) as pool, args.out.open("a") as out:
-        for row in pool.map(one_case, cases):
+        if args.motions:
+            args.motions.mkdir(parents=True, exist_ok=True)
+        for row in pool.map(partial(one_case, motions=args.motions), cases):
             out.write(json.dumps(row) + "\n")
             out.flush()
             print(row["name"], *(row.get(k, {}).get("psnr") for k in ("first", "second", "ep")),

@@ -200,3 +200,26 @@ def test_mass_radius_ignores_a_faint_stray_pose(cam):
     assert even.mass_radius(0.8) == pytest.approx(5.0) == even.max_displacement()
     with pytest.raises(ValueError, match="share"):
         m.mass_radius(0)
+
+
+def test_band_limited_psf_ncc_forgives_only_what_the_photo_cannot_carry(cam):
+    """A thin path and the same path doubled 3 px across it differ at the pixel scale and
+    agree at the resolution of a photo upscaled 6 times; a path turned by 30 degrees
+    still disagrees there."""
+    from napari_edgecme.core.metrics import band_sigma_for_upscale, motion_psf_ncc
+
+    line = [[x, 0.0] for x in range(-10, 11)]
+    truth = CameraMotion("translation", cam, line, np.ones(len(line)))
+    doubled = [[x, dy] for x, _ in line for dy in (-1.5, 1.5)]
+    thick = CameraMotion("translation", cam, doubled, np.ones(len(doubled)))
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    turned = CameraMotion("translation", cam, [[x * c, x * s] for x, _ in line],
+                          np.ones(len(line)))
+    sigma = band_sigma_for_upscale(6.0)
+    assert motion_psf_ncc(thick, truth) < 0.1
+    assert motion_psf_ncc(thick, truth, band_sigma=sigma) > 0.95
+    assert motion_psf_ncc(turned, truth, band_sigma=sigma) < 0.8
+    assert motion_psf_ncc(thick, truth, band_sigma=0.0) == motion_psf_ncc(thick, truth)
+    # the Gaussian's transfer exp(-2 pi^2 sigma^2 f^2) is 1/2 at the Nyquist limit 1 / (2 u)
+    assert np.exp(-2 * np.pi**2 * sigma**2 / 12.0**2) == pytest.approx(0.5)
+    assert band_sigma_for_upscale(1.0) == 0.0

@@ -17,13 +17,15 @@ blurred input. PSFs are compared after moving each one's centroid to its centre
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy import ndimage
 
 from .motion import CameraMotion, _grid_points
 
-__all__ = ["align_to", "aligned_psnr", "aligned_scores", "aligned_ssim", "motion_psf_ncc",
-           "profile_fidelity", "psf_ncc", "psnr", "true_profile_derivatives"]
+__all__ = ["align_to", "aligned_psnr", "aligned_scores", "aligned_ssim", "band_sigma_for_upscale",
+           "motion_psf_ncc", "profile_fidelity", "psf_ncc", "psnr", "true_profile_derivatives"]
 
 #: Largest in-plane rotation (degrees) searched by the rotation-aware alignment.
 MAX_ROTATION_DEG = 2.0
@@ -184,17 +186,47 @@ def psf_ncc(a, b) -> float:
     return float(x @ y / den) if den > 0 else 0.0
 
 
-def motion_psf_ncc(estimate: CameraMotion, truth: CameraMotion, grid=(4, 4)) -> float:
+def motion_psf_ncc(estimate: CameraMotion, truth: CameraMotion, grid=(4, 4),
+                   band_sigma: float = 0.0) -> float:
     """Mean centroid-aligned PSF NCC of two motions over a grid of image points.
 
     The estimate is applied at the truth's image size (:meth:`CameraMotion.rescale`).
+
+    Parameters
+    ----------
+    estimate, truth : CameraMotion
+    grid : (int, int)
+        Rows and columns of the image points.
+    band_sigma : float
+        When positive, both PSFs are low-passed by a Gaussian of this standard deviation
+        (pixels) before they are compared: the PSF NCC *at the resolution the photo
+        carries*. A photo whose finest detail is ``u`` pixels across (an image upscaled
+        ``u`` times has nothing above ``1 / (2 u)`` cycles per pixel) cannot determine a
+        PSF's structure finer than that, whatever the estimator; :func:`band_sigma_for_upscale`
+        gives the matching ``band_sigma``.
     """
     est = estimate.rescale(truth.image_shape)
     points = _grid_points(truth.image_shape, grid)
-    size = max(est.psf_size(points), truth.psf_size(points))
+    pad = 2 * math.ceil(3 * band_sigma) if band_sigma > 0 else 0
+    size = max(est.psf_size(points), truth.psf_size(points)) + pad
     ka = est.psf(points, size)
     kb = truth.psf(points, size)
+    if band_sigma > 0:
+        ka = [ndimage.gaussian_filter(k, band_sigma, mode="constant") for k in ka]
+        kb = [ndimage.gaussian_filter(k, band_sigma, mode="constant") for k in kb]
     return float(np.mean([psf_ncc(x, y) for x, y in zip(ka, kb, strict=True)]))
+
+
+def band_sigma_for_upscale(factor: float) -> float:
+    """Gaussian (px) with transfer 1/2 at the Nyquist limit of a photo upscaled ``factor`` x.
+
+    An image upscaled ``u`` times carries no frequency above ``f_c = 1 / (2 u)`` cycles
+    per pixel; ``exp(-2 pi^2 sigma^2 f_c^2) = 1/2`` gives
+    ``sigma = sqrt(ln 2 / 2) 2 u / pi`` (about ``0.375 u``). For :func:`motion_psf_ncc`'s
+    ``band_sigma``; 0 for a photo at its own resolution (``factor <= 1``).
+    """
+    factor = float(factor)
+    return math.sqrt(math.log(2.0) / 2.0) * 2.0 * factor / math.pi if factor > 1.0 else 0.0
 
 
 def _transition_width(derivative: np.ndarray, offsets: np.ndarray) -> float:
