@@ -31,8 +31,10 @@ except ImportError:
 #: Where tests leave files for people to look at (git-ignored).
 ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
 
-#: A run of the engine on the small test images takes well under this (ms).
-RUN_TIMEOUT = 30_000
+#: A guard against a hung run (ms), not a timing figure: the longest run here (Xu+Ep in
+#: ``test_viewer.py``) takes about 15 s on the idle machine and passed 30 s while the
+#: machine ran a two-job benchmark beside the tests.
+RUN_TIMEOUT = 120_000
 
 
 @pytest.fixture(scope="session")

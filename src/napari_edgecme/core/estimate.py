@@ -822,8 +822,9 @@ def _polish_candidates(run: _CoarseToFine, candidates, label: str, step: int, to
     return sparsity, polished, step, total
 
 
-#: MDF updates of the polish that ends Xu and Xu+Ep (0: none). Each solves the method's
-#: data term (Eq. 22) against the hyper-Laplacian latent of the current estimate
+#: MDF updates of the polish that ends Xu and Xu+Ep (0: none). Each solves the gradient
+#: term of Eq. 22 (for Xu+Ep without its edge-profile term: :data:`POLISH_EDGE_PROFILES`)
+#: against the hyper-Laplacian latent of the current estimate
 #: (:func:`~.deconv.iter_deconvolve` with :data:`POLISH_DECONVOLUTION`) on the finest
 #: level, with the estimate's support dilated by :data:`POLISH_DILATION` grid steps and
 #: the strongest :data:`POLISH_SALIENT` of the salient gradients. The L0 latent the
@@ -834,6 +835,15 @@ def _polish_candidates(run: _CoarseToFine, candidates, label: str, step: int, to
 POLISH_UPDATES = 2
 POLISH_SALIENT = 0.15
 POLISH_DILATION = 2
+#: Whether Xu+Ep's polish keeps the edge-profile term of Eq. 22 (``lambda_Ip`` times it).
+#: It does not: the profiles have chosen the basin by then (the alternation, the second
+#: start, the EpAlone candidate), and at the finest scale their inaccuracy -- about one
+#: kept profile in five is false to the blur -- only bends the final path. Without the
+#: term the polish fits the image data alone: on the 32 ``levin`` captures Xu+Ep went
+#: from 29.11 to 29.25 dB, and on the 60 ``lai`` cases its mean was unchanged (24.38 dB;
+#: manmade +0.02, natural -0.03, people +0.10, saturated -0.07, text -0.02), with 56 of
+#: 60 cases within 0.2 dB of Xu instead of 53 (``benchmarks/results/ep-polish-off.md``).
+POLISH_EDGE_PROFILES = False
 #: Keywords of the polish's hyper-Laplacian deconvolution (empty: its defaults). A
 #: cheaper latent -- splitting from beta = 4 (5 steps) and 4 border CG iterations, 1.8x
 #: faster -- left `lai` unchanged but collapsed the estimate of a small photo with
@@ -862,8 +872,9 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int,
     level = run.finest  # its MDF terms are rebuilt for the polish's own active set
     weights = initial_weights(level, motion.recentred())
     active = dilate(weights > 0, POLISH_DILATION)
+    lambda_ip = run.lambda_ip if POLISH_EDGE_PROFILES else 0.0
     ep_data = None
-    if run.profiles is not None and run.lambda_ip > 0:
+    if run.profiles is not None and lambda_ip > 0:
         ep_data = edge_images(level, run.profiles, 1.0, run.gain)
     g = level.blurred
     lo, hi = float(g.min()), float(g.max())
@@ -881,7 +892,7 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int,
         latent = (latent if unit is g else latent * (hi - lo) + lo).astype(g.dtype, copy=False)
         weights, _cost, _n = yield from relay_as(
             iter_mdf_update(level, weights, active, latent, ep_data, run.lambda_w,
-                            run.lambda_ip, run.method, salient=POLISH_SALIENT),
+                            lambda_ip, run.method, salient=POLISH_SALIENT),
             Progress("estimate", step, total, f"{where}: refitting the motion",
                      n_scales=n_scales))
         step += 1
