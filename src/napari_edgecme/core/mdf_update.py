@@ -129,7 +129,9 @@ def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient:
         f_grad = ndimage.gaussian_filter(f_grad, (0, smoothing, smoothing))
         g_grad = ndimage.gaussian_filter(g_grad, (0, smoothing, smoothing))
     term = gradient_term(f_grad, g_grad, pgrid, basis)
-    if "ep" in level.cache:  # Eq. 22: both terms in gradient units
+    if "ep" in level.cache and lambda_ip > 0:  # Eq. 22: both terms in gradient units
+        # (the polish passes lambda_ip = 0 on a level whose cache may hold the term:
+        # a term scaled by 0 would still cost its products in every FISTA iteration)
         term = term + level.cache["ep"].scaled(lambda_ip)
     return term
 
