@@ -99,9 +99,9 @@ def main(argv=None) -> int:
     if args.cases:
         cases = [c for c in cases if c["name"] in set(args.cases)]
     args.out.parent.mkdir(parents=True, exist_ok=True)
+    if args.motions:
+        args.motions.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(args.jobs) as pool, args.out.open("a") as out:
-        if args.motions:
-            args.motions.mkdir(parents=True, exist_ok=True)
         for row in pool.map(partial(one_case, motions=args.motions), cases):
             out.write(json.dumps(row) + "\n")
             out.flush()

@@ -223,3 +223,17 @@ def test_band_limited_psf_ncc_forgives_only_what_the_photo_cannot_carry(cam):
     # the Gaussian's transfer exp(-2 pi^2 sigma^2 f^2) is 1/2 at the Nyquist limit 1 / (2 u)
     assert np.exp(-2 * np.pi**2 * sigma**2 / 12.0**2) == pytest.approx(0.5)
     assert band_sigma_for_upscale(1.0) == 0.0
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"band_sigma": -1.0}, "band_sigma must be a finite number >= 0"),
+    ({"band_sigma": float("nan")}, "band_sigma must be a finite number >= 0"),
+])
+def test_band_limited_psf_ncc_refuses_a_bad_sigma_in_one_line(cam, kwargs, match):
+    from napari_edgecme.core.metrics import band_sigma_for_upscale, motion_psf_ncc
+
+    m = CameraMotion("translation", cam, [[0, 0], [3, 0]], [1, 1])
+    with pytest.raises(ValueError, match=match):
+        motion_psf_ncc(m, m, **kwargs)
+    with pytest.raises(ValueError, match="factor must be a finite number > 0"):
+        band_sigma_for_upscale(0.0)

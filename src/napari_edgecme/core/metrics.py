@@ -22,6 +22,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
+from ._validation import check_positive
 from .motion import CameraMotion, _grid_points
 
 __all__ = ["align_to", "aligned_psnr", "aligned_scores", "aligned_ssim", "band_sigma_for_upscale",
@@ -205,6 +206,7 @@ def motion_psf_ncc(estimate: CameraMotion, truth: CameraMotion, grid=(4, 4),
         PSF's structure finer than that, whatever the estimator; :func:`band_sigma_for_upscale`
         gives the matching ``band_sigma``.
     """
+    band_sigma = check_positive(band_sigma, "band_sigma", allow_zero=True)
     est = estimate.rescale(truth.image_shape)
     points = _grid_points(truth.image_shape, grid)
     pad = 2 * math.ceil(3 * band_sigma) if band_sigma > 0 else 0
@@ -225,7 +227,7 @@ def band_sigma_for_upscale(factor: float) -> float:
     ``sigma = sqrt(ln 2 / 2) 2 u / pi`` (about ``0.375 u``). For :func:`motion_psf_ncc`'s
     ``band_sigma``; 0 for a photo at its own resolution (``factor <= 1``).
     """
-    factor = float(factor)
+    factor = check_positive(factor, "factor")
     return math.sqrt(math.log(2.0) / 2.0) * 2.0 * factor / math.pi if factor > 1.0 else 0.0
 
 
