@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["METHOD_NAMES", "fmt", "load_average", "machine_info", "machine_line", "markdown_table",
-           "mean_or_none", "median_or_none", "memory_note", "met_mark"]
+__all__ = ["METHOD_NAMES", "blas_kernel", "fmt", "load_average", "machine_info", "machine_line",
+           "markdown_table", "mean_or_none", "median_or_none", "memory_note", "met_mark"]
 
 #: Display names of the estimators (engine name -> name in the tables).
 METHOD_NAMES = {"ep": "EpAlone", "xu": "Xu", "xu+ep": "Xu+Ep"}
@@ -37,6 +37,43 @@ def load_average() -> float | None:
         return None
 
 
+#: The symbols OpenBLAS builds export to name the CPU kernel they run.
+_BLAS_CORENAME_SYMBOLS = ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename",
+                          "openblas_get_corename64_", "openblas_get_corename")
+
+
+def blas_kernel() -> str | None:
+    """The CPU kernel of numpy's bundled OpenBLAS, e.g. ``"Haswell"`` or ``"SkylakeX"``.
+
+    OpenBLAS picks its kernel from the CPU (``OPENBLAS_CORETYPE`` overrides it), and two
+    kernels round differently in the last bits. The alternating estimators amplify that:
+    on one ``lai`` case Xu falls into a different basin (23.9 vs 15.6 dB), although the
+    suites' category means move by about 0.1 dB (``benchmarks/results/xu-candidate.md``).
+    Reports record the kernel so that a figure can be reproduced.
+
+    Returns
+    -------
+    str or None
+        None when numpy does not bundle OpenBLAS (Accelerate, MKL, a system BLAS) or the
+        library does not say.
+    """
+    import ctypes
+
+    libs = Path(np.__file__).resolve().parent.parent / "numpy.libs"
+    for lib in sorted(libs.glob("lib*openblas*.so*")) if libs.is_dir() else ():
+        try:
+            handle = ctypes.CDLL(str(lib))
+        except OSError:
+            continue
+        for symbol in _BLAS_CORENAME_SYMBOLS:
+            corename = getattr(handle, symbol, None)
+            if corename is not None:
+                corename.restype = ctypes.c_char_p
+                name = corename()
+                return name.decode("ascii", "replace").strip() if name else None
+    return None
+
+
 def machine_info() -> dict:
     """Date, machine name, CPU count, platform and versions, for reports."""
     import scipy
@@ -53,6 +90,7 @@ def machine_info() -> dict:
         "python": platform.python_version(),
         "numpy": np.__version__,
         "scipy": scipy.__version__,
+        "blas_kernel": blas_kernel(),
         "version": __version__,
     }
 
@@ -66,8 +104,9 @@ def machine_line(m: dict) -> str:
         load = f"; load average {loads[0]:.1f} at the start, {loads[1]:.1f} at the end"
         if max(loads) > (m.get("cpus") or 1) + 0.5:
             load += " (above the CPU count: the machine was shared, so times are inflated)"
+    blas = f"OpenBLAS kernel {m['blas_kernel']}, " if m.get("blas_kernel") else ""
     return (f"{m['date']} on `{m['node']}` ({m['cpus']} CPUs{memory}, {m['platform']}), "
-            f"Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}, "
+            f"Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}, {blas}"
             f"napari-edgecme {m['version']}{load}")
 
 
