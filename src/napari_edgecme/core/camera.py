@@ -44,8 +44,10 @@ MODELS = ("translation", "inplane", "rotation")
 #: estimators keep the MDF's centroid pose at the identity (claims 1-2); half the max blur
 #: holds a path symmetric about its centroid, while real shakes reach up to 0.58 of their
 #: extent from it (``benchmarks/bench_grid_reach.py``), so a max blur equal to the extent
-#: can clip them. Wider grids were measured and lost on ``lai``, where the max blur has a
-#: margin (``benchmarks/results/grid-reach.md``).
+#: can clip them. A wider grid (0.58) was measured on all three estimators and left the
+#: suites' means where the BLAS kernel alone moves them (``lai`` Xu+Ep +0.00, ``levin``
+#: +0.06 dB); an earlier loss on ``lai`` was one case that flips basin with the kernel
+#: (``benchmarks/results/grid-reach.md``).
 GRID_REACH = 0.5
 
 #: 35 mm-equivalent focal length (mm) assumed when a photo carries no EXIF focal
