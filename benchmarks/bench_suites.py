@@ -7,6 +7,11 @@ sheet each. Writes ``<suite>[-quick].md`` and ``.json`` (and ``real-sheets/``) i
 ``--out``. The logic lives in :mod:`napari_edgecme._suites` (also ``edgecme bench --suite``).
 
     python benchmarks/bench_suites.py lai [--quick] [--jobs 2] [--data DIR] [--out DIR]
+
+Single ``lai`` cases depend on numpy's OpenBLAS kernel in their last bits, and a few flip
+basin with it. The reports name the kernel. The figures of record used SkylakeX: run with
+``OPENBLAS_CORETYPE=SkylakeX`` to compare with them, or run before and after under one
+kernel (``benchmarks/results/xu-candidate.md``).
 """
 
 from __future__ import annotations
