@@ -1,6 +1,7 @@
 """Reports say which machine and which BLAS kernel a figure came from."""
 
 import os
+import platform
 import subprocess
 import sys
 
@@ -22,7 +23,7 @@ def test_machine_line_names_the_blas_kernel_a_run_used():
 def test_blas_kernel_follows_openblas_coretype():
     if blas_kernel() is None:
         pytest.skip("numpy does not bundle OpenBLAS here")
-    if os.uname().machine not in ("x86_64", "AMD64"):
+    if platform.machine() not in ("x86_64", "AMD64"):
         pytest.skip("OPENBLAS_CORETYPE names x86 kernels")
     env = {**os.environ, "OPENBLAS_CORETYPE": "Haswell"}  # AVX2: any x86-64 CI machine
     out = subprocess.run([sys.executable, "-c", "from napari_edgecme._report import "
