@@ -1,12 +1,19 @@
 """Claims about camera intrinsics, the three pose models and pose grids."""
 
+import os
+import platform
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
 from napari_edgecme.core.camera import (
     DEFAULT_FOCAL_35MM,
     Intrinsics,
+    compose_homographies,
     homographies,
+    invert_homographies,
     pose_grid,
     poses_from_homographies,
     warp_points,
@@ -130,3 +137,64 @@ def test_a_motion_found_on_the_working_copy_applies_back_to_camera_sizes(shape):
     assert back.image_shape == shape
     with pytest.raises(ValueError, match="another aspect ratio"):
         intr.rescaled((round(shape[0] * 1.1), shape[1]))
+
+
+def test_inverse_and_product_of_homographies_match_linear_algebra(intr, rng):
+    poses = rng.normal(scale=0.02, size=(20, 3))
+    H = homographies("rotation", intr, poses)
+    assert np.allclose(invert_homographies(H), np.linalg.inv(H), rtol=1e-12, atol=1e-12)
+    assert np.allclose(compose_homographies(H, H[::-1]), H @ H[::-1], rtol=1e-12, atol=1e-9)
+    assert np.allclose(compose_homographies(H, invert_homographies(H)), np.eye(3), atol=1e-9)
+
+
+_GEOMETRY_DIGEST = """
+import hashlib, numpy as np
+from napari_edgecme.core import camera
+from napari_edgecme.core.deconv import from_opponent, to_opponent
+from napari_edgecme.core.photometry import to_luminance
+rng = np.random.default_rng(0)
+intr = camera.Intrinsics.from_image_shape((480, 640))
+digest = hashlib.sha256()
+for model, scale in (("rotation", 0.01), ("inplane", [3.0, 3.0, 0.01])):
+    H = camera.homographies(model, intr, rng.normal(scale=scale, size=(64, 3)))
+    for a in (H, camera.invert_homographies(H), camera.compose_homographies(H, H[::-1]),
+              camera.warp_points(H, rng.random((32, 2)) * 600),
+              camera.poses_from_homographies(model, intr, H)):
+        digest.update(np.ascontiguousarray(a).tobytes())
+rgb = rng.random((48, 48, 3)).astype(np.float32)
+for a in (to_luminance(rgb), to_opponent(rgb), from_opponent(rgb)):
+    digest.update(a.tobytes())
+print(digest.hexdigest())
+"""
+
+
+def _cpu_flags() -> set[str]:
+    try:
+        with open("/proc/cpuinfo") as info:
+            return next((set(line.split(":", 1)[1].split()) for line in info
+                         if line.startswith("flags")), set())
+    except OSError:
+        return set()
+
+
+def test_geometry_and_colour_are_the_same_bits_under_every_blas_kernel():
+    """OpenBLAS kernels round matrix products differently in the last bits (the ``lai``
+    figures moved by 0.1 dB between Haswell and SkylakeX); homographies, their inverses,
+    point warps and the colour transforms are elementwise arithmetic and must not move."""
+    from napari_edgecme._report import blas_kernel
+
+    if blas_kernel() is None or platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip("needs numpy's bundled OpenBLAS on x86-64 (OPENBLAS_CORETYPE)")
+    flags = _cpu_flags()
+    kernels = ["Prescott"] + [name for name, flag in (("Haswell", "avx2"),
+                                                       ("SkylakeX", "avx512f"))
+                              if flag in flags]
+    if len(kernels) < 2:
+        pytest.skip("one OpenBLAS kernel on this CPU")
+    digests = {}
+    for kernel in kernels:
+        env = {**os.environ, "OPENBLAS_CORETYPE": kernel}
+        digests[kernel] = subprocess.run([sys.executable, "-c", _GEOMETRY_DIGEST], env=env,
+                                         capture_output=True, text=True, check=True,
+                                         timeout=120).stdout.strip()
+    assert len(set(digests.values())) == 1, digests

@@ -13,6 +13,12 @@ Conventions (fixed once; motion files and tests depend on them):
 * ``"inplane"``: pose ``(tx, ty, theta_z)``, ``H = T(tx, ty) Rz(theta_z)`` with ``Rz``
   the rotation ``[[cos, -sin], [sin, cos]]`` in ``(x, y)`` about the principal point;
 * ``"translation"``: pose ``(tx, ty)`` in pixels, ``H = T(tx, ty)``.
+
+The 3x3 algebra here (products, inverses, determinants, point warps) is spelled out as
+elementwise arithmetic in a fixed order, not handed to BLAS or LAPACK: OpenBLAS picks a
+CPU kernel that rounds differently in the last bits, and the alternating estimators can
+amplify such a difference into a different estimate. Written out, the geometry is the
+same bits under every kernel (``tests/core/test_camera.py``).
 """
 
 from __future__ import annotations
@@ -30,8 +36,10 @@ __all__ = [
     "MODELS",
     "Intrinsics",
     "PoseGrid",
+    "compose_homographies",
     "displacements",
     "homographies",
+    "invert_homographies",
     "pose_grid",
     "poses_from_homographies",
     "warp_points",
@@ -176,6 +184,35 @@ class Intrinsics:
                 "image_shape": list(self.image_shape)}
 
 
+def compose_homographies(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Products ``A B`` of 3x3 matrices, broadcast over leading axes: (..., 3, 3)."""
+    return (A[..., :, 0, None] * B[..., None, 0, :] + A[..., :, 1, None] * B[..., None, 1, :]
+            + A[..., :, 2, None] * B[..., None, 2, :])
+
+
+def _det3(A: np.ndarray) -> np.ndarray:
+    """Determinants of 3x3 matrices, shape (..., 3, 3) -> (...)."""
+    return (A[..., 0, 0] * (A[..., 1, 1] * A[..., 2, 2] - A[..., 1, 2] * A[..., 2, 1])
+            - A[..., 0, 1] * (A[..., 1, 0] * A[..., 2, 2] - A[..., 1, 2] * A[..., 2, 0])
+            + A[..., 0, 2] * (A[..., 1, 0] * A[..., 2, 1] - A[..., 1, 1] * A[..., 2, 0]))
+
+
+def invert_homographies(H) -> np.ndarray:
+    """Inverses of homographies by the adjugate, shape (..., 3, 3) -> (..., 3, 3).
+
+    Exact up to rounding for the well-conditioned matrices of the pose models (their
+    determinant is 1 for ``rotation`` and ``inplane``).
+    """
+    H = np.asarray(H, dtype=float)
+    a, b, c = H[..., 0, 0], H[..., 0, 1], H[..., 0, 2]
+    d, e, f = H[..., 1, 0], H[..., 1, 1], H[..., 1, 2]
+    g, h, i = H[..., 2, 0], H[..., 2, 1], H[..., 2, 2]
+    adj = np.stack([np.stack([e * i - f * h, c * h - b * i, b * f - c * e], -1),
+                    np.stack([f * g - d * i, a * i - c * g, c * d - a * f], -1),
+                    np.stack([d * h - e * g, b * g - a * h, a * e - b * d], -1)], -2)
+    return adj / _det3(H)[..., None, None]
+
+
 def _rodrigues(theta: np.ndarray) -> np.ndarray:
     """Rotation matrices ``expm([theta]_x)`` for rotation vectors, shape (n, 3) -> (n, 3, 3)."""
     theta = np.asarray(theta, dtype=float)
@@ -189,7 +226,8 @@ def _rodrigues(theta: np.ndarray) -> np.ndarray:
     zero = np.zeros_like(x)
     cross = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1),
                       np.stack([-y, x, zero], -1)], -2)
-    return np.eye(3) + a[:, None, None] * cross + b[:, None, None] * (cross @ cross)
+    cross2 = compose_homographies(cross, cross)
+    return np.eye(3) + a[:, None, None] * cross + b[:, None, None] * cross2
 
 
 def _log_rotation(R: np.ndarray) -> np.ndarray:
@@ -251,7 +289,7 @@ def homographies(model: str, intrinsics: Intrinsics, poses) -> np.ndarray:
         H[:, 1, 2] = poses[:, 1] + cy - (s * cx + c * cy)
     else:
         K = intrinsics.K
-        H = K @ _rodrigues(poses) @ np.linalg.inv(K)
+        H = compose_homographies(compose_homographies(K, _rodrigues(poses)), invert_homographies(K))
     return H
 
 
@@ -260,8 +298,8 @@ def poses_from_homographies(model: str, intrinsics: Intrinsics, H) -> np.ndarray
     H = np.asarray(H, dtype=float)
     if model == "rotation":
         K = intrinsics.K
-        R = np.linalg.inv(K) @ H @ K
-        return _log_rotation(R / np.cbrt(np.linalg.det(R))[:, None, None])
+        R = compose_homographies(compose_homographies(invert_homographies(K), H), K)
+        return _log_rotation(R / np.cbrt(_det3(R))[:, None, None])
     check_choice(model, "model", MODELS)
     H = H / H[:, 2:3, 2:3]
     if model == "translation":
@@ -277,10 +315,12 @@ def poses_from_homographies(model: str, intrinsics: Intrinsics, H) -> np.ndarray
 
 def warp_points(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """Apply homographies (n, 3, 3) to points ``(x, y)`` (m, 2): returns (n, m, 2)."""
-    xy = np.asarray(xy, dtype=float)
-    num = H[:, None, :, :2] @ xy[None, :, :, None]  # (n, m, 3, 1)
-    num = num[..., 0] + H[:, None, :, 2]
-    return num[..., :2] / num[..., 2:3]
+    H = np.asarray(H, dtype=float)[:, None]  # (n, 1, 3, 3)
+    x, y = np.asarray(xy, dtype=float).T  # (m,) each
+    num_x = H[..., 0, 0] * x + H[..., 0, 1] * y + H[..., 0, 2]
+    num_y = H[..., 1, 0] * x + H[..., 1, 1] * y + H[..., 1, 2]
+    den = H[..., 2, 0] * x + H[..., 2, 1] * y + H[..., 2, 2]
+    return np.stack([num_x / den, num_y / den], -1)
 
 
 def displacements(model: str, intrinsics: Intrinsics, poses, points_rc) -> np.ndarray:

@@ -150,6 +150,7 @@ from .deconv_solvers import (
     wiener,
 )
 from .motion import CameraMotion
+from .photometry import mix_channels
 from .progress import Progress, StopRequested, drive, relay, stop
 
 __all__ = ["CHROMAS", "COLORS", "DEFAULTS", "HALF_CHROMA_PIXELS", "METHODS", "METHOD_PARAMETERS",
@@ -689,16 +690,15 @@ HALF_CHROMA_PIXELS = 6_000_000
 
 def to_opponent(rgb: np.ndarray) -> np.ndarray:
     """(H, W, 3) RGB -> (H, W, 3) opponent channels, scaled into [0, 1] (same dtype)."""
-    basis = (OPPONENT * OPPONENT_SCALE[:, None]).astype(rgb.dtype)
-    out = rgb @ basis.T
+    out = mix_channels(rgb, OPPONENT * OPPONENT_SCALE[:, None])
     out += OPPONENT_OFFSET.astype(rgb.dtype)
     return out
 
 
 def from_opponent(opp: np.ndarray) -> np.ndarray:
     """The inverse of :func:`to_opponent` (not clipped)."""
-    basis = (OPPONENT / OPPONENT_SCALE[:, None]).astype(opp.dtype)  # rows of OPPONENT^-T
-    return (opp - OPPONENT_OFFSET.astype(opp.dtype)) @ basis
+    basis = OPPONENT / OPPONENT_SCALE[:, None]  # rows of OPPONENT^-T
+    return mix_channels(opp - OPPONENT_OFFSET.astype(opp.dtype), basis.T)
 
 
 def opponent_data_weights(lam: float, alpha: float) -> list[float]:

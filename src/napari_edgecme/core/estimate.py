@@ -66,7 +66,7 @@ from .deconv_prior import grad
 from .latent import iter_l0_latent
 from .mdf_update import edge_images, iter_mdf_update
 from .motion import CameraMotion
-from .photometry import LUMA
+from .photometry import LUMA, mix_channels
 from .profile_fit import (
     EP_EDGE_SPREAD,
     EP_MAX_MISFIT,
@@ -231,7 +231,7 @@ def default_max_blur(shape) -> float:
 def _luminance(img: np.ndarray) -> np.ndarray:
     if img.ndim == 2:
         return img
-    return img @ LUMA.astype(img.dtype)
+    return mix_channels(img, LUMA)
 
 
 #: Xu+Ep first runs EpAlone on its profiles and drops the edge-profile term (runs as

@@ -19,8 +19,10 @@ from .camera import (
     MODELS,
     Intrinsics,
     check_poses,
+    compose_homographies,
     displacements,
     homographies,
+    invert_homographies,
     poses_from_homographies,
 )
 
@@ -352,7 +354,7 @@ class CameraMotion:
         Every pose ``H_j`` becomes ``H_j (H_c)^-1`` with ``H_c`` the centroid pose.
         """
         Hc = homographies(self.model, self.intrinsics, self.centroid_pose()[None])[0]
-        H = self.homographies() @ np.linalg.inv(Hc)
+        H = compose_homographies(self.homographies(), invert_homographies(Hc))
         poses = poses_from_homographies(self.model, self.intrinsics, H)
         return CameraMotion(self.model, self.intrinsics, poses, self.weights)
 

@@ -34,7 +34,14 @@ import scipy.fft as sfft
 from numpy.lib.stride_tricks import sliding_window_view
 
 from ._validation import as_float_image, check_choice, check_positive, float_dtype
-from .camera import Intrinsics, check_poses, displacements, homographies
+from .camera import (
+    Intrinsics,
+    check_poses,
+    displacements,
+    homographies,
+    invert_homographies,
+    warp_points,
+)
 from .linop import LinearOperator
 from .motion import CameraMotion, psf_matrix, psf_size_for
 
@@ -85,10 +92,10 @@ def _pose_taps(model, intrinsics, poses, shape, origin):
     H, W = shape
     rr, cc = np.meshgrid(np.arange(H, dtype=float) + origin[0],
                          np.arange(W, dtype=float) + origin[1], indexing="ij")
-    xy1 = np.stack([cc.ravel(), rr.ravel(), np.ones(H * W)])
-    for Hinv in np.linalg.inv(homographies(model, intrinsics, poses)):
-        src = Hinv @ xy1
-        yield _bilinear_taps(src[1] / src[2] - origin[0], src[0] / src[2] - origin[1], shape)
+    xy = np.stack([cc.ravel(), rr.ravel()], -1)
+    for Hinv in invert_homographies(homographies(model, intrinsics, poses)):
+        src = warp_points(Hinv[None], xy)[0]
+        yield _bilinear_taps(src[:, 1] - origin[0], src[:, 0] - origin[1], shape)
 
 
 class WarpSum(LinearOperator):

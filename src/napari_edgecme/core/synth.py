@@ -13,7 +13,14 @@ import numpy as np
 from scipy import ndimage
 
 from ._validation import as_float_image, as_rng, check_choice, check_positive
-from .camera import MODELS, Intrinsics, homographies, n_params
+from .camera import (
+    MODELS,
+    Intrinsics,
+    homographies,
+    invert_homographies,
+    n_params,
+    warp_points,
+)
 from .motion import CameraMotion
 from .progress import Progress
 
@@ -154,15 +161,14 @@ def render_blur(image, motion_or_poses, model: str | None = None,
     weights = np.asarray(weights, float) / np.sum(weights)
     rows, cols = img.shape[:2]
     rr, cc = np.mgrid[0:rows, 0:cols].astype(float)
-    xy1 = np.stack([cc.ravel(), rr.ravel(), np.ones(rows * cols)])
+    xy = np.stack([cc.ravel(), rr.ravel()], -1)
     channels = [img] if img.ndim == 2 else [img[..., c] for c in range(img.shape[2])]
     coeffs = [ndimage.spline_filter(ch.astype(np.float64), order=3, mode="mirror")
               for ch in channels]
     out = [np.zeros(rows * cols) for _ in channels]
-    inverses = np.linalg.inv(homographies(model, intrinsics, poses))
+    inverses = invert_homographies(homographies(model, intrinsics, poses))
     for step, (Hinv, w) in enumerate(zip(inverses, weights, strict=True), start=1):
-        src = Hinv @ xy1
-        coords = np.stack([src[1] / src[2], src[0] / src[2]])
+        coords = warp_points(Hinv[None], xy)[0, :, ::-1].T
         for acc, co in zip(out, coeffs, strict=True):
             acc += w * ndimage.map_coordinates(co, coords, order=3, mode="mirror",
                                                prefilter=False)
