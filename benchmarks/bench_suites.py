@@ -8,10 +8,10 @@ sheet each. Writes ``<suite>[-quick].md`` and ``.json`` (and ``real-sheets/``) i
 
     python benchmarks/bench_suites.py lai [--quick] [--jobs 2] [--data DIR] [--out DIR]
 
-Single ``lai`` cases depend on numpy's OpenBLAS kernel in their last bits, and a few flip
-basin with it. The reports name the kernel. The figures of record used SkylakeX: run with
-``OPENBLAS_CORETYPE=SkylakeX`` to compare with them, or run before and after under one
-kernel (``benchmarks/results/xu-candidate.md``).
+The reports name numpy's OpenBLAS kernel. The engine's geometry and colour arithmetic do
+not use BLAS, and the Haswell and SkylakeX kernels give the same ``lai`` figures but for
+one Xu+Ep case (0.09 dB; ``benchmarks/results/lai-skylakex.md``); the MDF update's
+least-squares products still use BLAS, so compare before and after under one kernel.
 """
 
 from __future__ import annotations

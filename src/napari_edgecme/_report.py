@@ -46,10 +46,11 @@ def blas_kernel() -> str | None:
     """The CPU kernel of numpy's bundled OpenBLAS, e.g. ``"Haswell"`` or ``"SkylakeX"``.
 
     OpenBLAS picks its kernel from the CPU (``OPENBLAS_CORETYPE`` overrides it), and two
-    kernels round differently in the last bits. The alternating estimators amplify that:
-    on one ``lai`` case Xu falls into a different basin (23.9 vs 15.6 dB), although the
-    suites' category means move by about 0.1 dB (``benchmarks/results/xu-candidate.md``).
-    Reports record the kernel so that a figure can be reproduced.
+    kernels round differently in the last bits; the alternating estimators can amplify
+    that into another basin (``benchmarks/results/xu-candidate.md``). The engine keeps its
+    geometry and colour arithmetic out of BLAS, which removed nearly all of it, but the
+    MDF update still uses BLAS: reports record the kernel so that a figure can be
+    reproduced.
 
     Returns
     -------
