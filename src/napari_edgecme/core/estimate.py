@@ -116,6 +116,10 @@ DEFAULTS = {
 }
 
 _EP_UPDATES_PER_SCALE = 2
+#: The L0 weight at a level of scale ``s`` starts at ``lambda_f * s ** -_LAMBDA_F_SCALING``.
+#: 2 instead of 1 rescued some of the large text shakes for Xu (``lai`` Xu +0.36 dB, text
+#: +1.26) but not Xu+Ep beyond one bistable case, and cut Xu+Ep's margin over Xu
+#: (``benchmarks/results/lambda-f-scaling.md``).
 _LAMBDA_F_SCALING = 1.0
 _SALIENT_START = 0.1  # share of latent gradients used by the first MDF update of a scale
 #: Alternations at the finest scale (at most; Xu, Xu+Ep). Measured on 16 synthetic
