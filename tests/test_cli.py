@@ -830,7 +830,7 @@ def test_bench_data_applies_to_the_suites_only(cd, capsys):
     assert status == 2 and len(err) == 1 and "no data for suite 'lai'" in err[0]
 
 
-def test_the_summary_says_when_xu_ep_kept_the_start_from_the_profiles():
+def test_the_summary_says_which_start_the_estimate_kept():
     from napari_edgecme.cli._deblur import estimate_summary
     from napari_edgecme.core.camera import Intrinsics
     from napari_edgecme.core.estimate import EstimateInfo, MotionEstimate
@@ -843,11 +843,14 @@ def test_the_summary_says_when_xu_ep_kept_the_start_from_the_profiles():
     kept = estimate_summary(MotionEstimate(motion, None, None, info), "xu+ep", 9.0, "default")
     info.start = "EpAlone"
     own = estimate_summary(MotionEstimate(motion, None, None, info), "xu+ep", 9.0, "default")
+    info.start = "wide"
+    wide = estimate_summary(MotionEstimate(motion, None, None, info), "xu+ep", 9.0, "default")
     assert "start" not in plain and "own" not in plain
     assert kept == plain.replace(", 0.0 s)", ", kept the start from the profiles' estimate, "
                                                "0.0 s)")
     assert own == plain.replace(", 0.0 s)", ", kept the profiles' own estimate (polished), "
                                               "0.0 s)")
+    assert wide == plain.replace(", 0.0 s)", ", kept the start from a wide motion, 0.0 s)")
 
 
 def test_the_summary_says_which_profile_model_epalone_kept():

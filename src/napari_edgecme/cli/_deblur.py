@@ -103,6 +103,8 @@ def estimate_summary(result, requested: str, max_blur: float, focal_source: str)
         text += ", kept the start from the profiles' estimate"
     elif start == "EpAlone":
         text += ", kept the profiles' own estimate (polished)"
+    elif start == "wide":
+        text += ", kept the start from a wide motion"
     text += f", {info.seconds:.1f} s)"
     if not info.converged:
         text += f"; {info.message}"

@@ -132,17 +132,23 @@ _MAX_ITER = 1000  # cap on n_iter (alternations per scale)
 #: An estimate whose blur extent (px of the working copy, :meth:`CameraMotion.max_displacement`)
 #: is below this has collapsed to the no-blur solution.
 COLLAPSE_EXTENT = 2.0
-#: Xu and Xu+Ep also restart when :data:`COLLAPSE_MASS_SHARE` of the estimate's weight
-#: lies within this radius (px of the working copy, :meth:`CameraMotion.mass_radius`) of
-#: its centroid: a delta with a few stray poses far from it, which the extent misses
-#: (``lai`` saturated_03_gyro2: extent 9.6 px, 80 % of the weight within 2.4 px; the
-#: restart's estimate deblurs it by 7.4 dB instead of 0.1; the true motions of ``lai``
-#: hold 80 % within 5.5-9.7 px). The restart is then kept only if its latent has the
-#: sparser gradients (:func:`gradient_sparsity`), as for Xu+Ep's second start: a small
-#: true blur has a small radius too. See ``benchmarks/results/collapse-radius.md``.
-COLLAPSE_MASS_RADIUS = 2.5
-COLLAPSE_MASS_SHARE = 0.8
-#: After a collapse the estimation restarts once with ``lambda_f`` times this.
+#: Xu and Xu+Ep run the coarse-to-fine alternation a second time from a wide motion
+#: (the blob over the whole pose grid of :func:`~.pyramid.initial_weights`) with
+#: :data:`_RESTART_LAMBDA_F` times the L0 weight, polish both estimates and keep the one
+#: whose latent has the sparser gradients (:func:`gradient_sparsity`), as Xu+Ep does with
+#: its second start. The small blob the alternation starts from finds a long shake's
+#: path only on some photos: on others it settles on a delta with stray poses, or on a
+#: short wrong path, and the profiles' start (:data:`SECOND_START`) is not offered when
+#: the profiles disagree. On the 60 ``lai`` cases Xu went from 23.61 to 24.13 dB and
+#: Xu+Ep from 24.24 to 24.53 (share of the oracle's gain 46.8 -> 49.4 %; saturated_03_gyro2
+#: 18.7 -> 25.4 dB, text_03_gyro2 15.6 -> 24.2; no Xu+Ep case worse by more than 0.52 dB),
+#: for 1.4x the CPU time. It replaced a restart only when 80 % of the weight lay within
+#: 2.5 px of the centroid, which both of those cases escaped (4.5 and 10.6 px). See
+#: ``benchmarks/results/wide-start.md``. Without it the estimation restarts from the wide
+#: motion only after a collapse to no blur (:data:`COLLAPSE_EXTENT`).
+WIDE_START = True
+#: The second, wide start runs with ``lambda_f`` times this (a sharp-edged latent then
+#: has to be explained by the blur).
 _RESTART_LAMBDA_F = 3.0
 #: "No blur found" when the L0 cost of the estimate exceeds the identity's by this factor
 #: (:func:`blind_costs`).
@@ -169,7 +175,8 @@ class EstimateInfo:
     seconds: float = 0.0
     converged: bool = False
     message: str = ""
-    #: restarts after a collapse to no blur
+    #: Xu, Xu+Ep: runs of the alternation from a wide motion (:data:`WIDE_START`, or
+    #: after a collapse to no blur)
     restarts: int = 0
     #: True when no blur was found (the motion is then the identity)
     no_blur: bool = False
@@ -180,12 +187,13 @@ class EstimateInfo:
     #: (Eq. 16; :meth:`~.profile_fit.RobustProfileFit.relative_misfit`); Xu+Ep: that of
     #: the EpAlone check on its profiles (:data:`XU_EP_GATE`)
     profile_misfit: float | None = None
-    #: Xu+Ep: the start of the estimate kept, "blob" (the small blob of
-    #: :func:`~.pyramid.initial_weights`), "edge profiles" (the alternation from the
-    #: EpAlone estimate of its gate, :data:`SECOND_START`) or "EpAlone" (that estimate
-    #: itself, on step edges whose normals span the plane: :data:`EP_CANDIDATE`), and the
-    #: gradient sparsity of the candidates' polished latents in that order
-    #: (:func:`gradient_sparsity`; the lowest is kept)
+    #: the start of the estimate kept, "blob" (the small blob of
+    #: :func:`~.pyramid.initial_weights`), "wide" (the wide motion of :data:`WIDE_START`),
+    #: and for Xu+Ep "edge profiles" (the alternation from the EpAlone estimate of its
+    #: gate, :data:`SECOND_START`) or "EpAlone" (that estimate itself, on step edges whose
+    #: normals span the plane: :data:`EP_CANDIDATE`); and the gradient sparsity of the
+    #: Xu+Ep candidates' polished latents (:func:`gradient_sparsity`; the lowest is kept):
+    #: the blob's or wide start's estimate, the edge profiles' start, EpAlone's
     start: str = "blob"
     start_sparsity: tuple[float, ...] | None = None
     #: EpAlone: the edge spread (px of the working copy) of the profile model whose
@@ -457,38 +465,35 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 f"motion ({info.profile_misfit:.0%} of their energy is left unexplained by "
                 f"the best one; at most {EP_MAX_MISFIT:.0%} is accepted); try method "
                 "'xu+ep', which also uses the image")
-        # -- collapse to no blur: restart once from a wide motion, with a stronger L0
-        # weight (the sharp-edged latent then has to be explained by the blur)
+        # -- the wide start (Xu, Xu+Ep): the alternation again from a wide motion, with a
+        # stronger L0 weight; every method restarts so after a collapse to no blur
         extent = motion.max_displacement()
-        # Xu, Xu+Ep: a collapse that the extent misses -- nearly all the weight on one
-        # pose, the rest on stray poses far from it
-        radius = motion.mass_radius(COLLAPSE_MASS_SHARE) if method != "ep" else math.inf
         collapsed = extent < COLLAPSE_EXTENT
-        if (collapsed or radius < COLLAPSE_MASS_RADIUS) and not constant:
+        if not constant and (collapsed or (WIDE_START and method != "ep")):
             info.restarts += 1
             total += sum(level_iters)
-            found = (f"no blur found (extent {extent:.1f} px)" if collapsed else
-                     f"a collapsed estimate ({COLLAPSE_MASS_SHARE:.0%} of its weight within "
-                     f"{radius:.1f} px)")
-            yield Progress("estimate", step, total, f"{found}: restarting from a wider "
-                           "motion", n_scales=len(scales))
+            yield Progress("estimate", step, total,
+                           (f"no blur found (extent {extent:.1f} px): restarting"
+                            if collapsed else "the second start") + " from a wide motion",
+                           n_scales=len(scales))
             again, again_latent, step = yield from run.iterate(
-                step, total, wide_start=True, lambda_f_factor=_RESTART_LAMBDA_F)
+                step, total, wide_start=True, lambda_f_factor=_RESTART_LAMBDA_F,
+                label="wide start")
             if collapsed:
                 if again.max_displacement() > extent:
                     motion, latent = again, again_latent
+                    info.start = "wide"
             elif again.max_displacement() >= COLLAPSE_EXTENT:
-                # the first estimate is a blur too: keep the sparser latent's
+                # both are blurs: keep the sparser latent's
                 sparsity, both, step, total = yield from _polish_candidates(
-                    run, (motion, again), "restart", step, total)
+                    run, (motion, again), "wide start", step, total)
                 if sparsity is not None:
                     won = sparsity[1] < sparsity[0]
-                    info.message += (f"restarted after {found}; the "
-                                     f"{'restart' if won else 'first estimate'} won "
-                                     f"(gradient sparsity {sparsity[1]:.4g} vs "
-                                     f"{sparsity[0]:.4g}); ")
+                    info.message += (f"the {'wide' if won else 'first'} start won (gradient "
+                                     f"sparsity {min(sparsity):.4g} vs {max(sparsity):.4g}); ")
                     if won:
                         motion, latent = again, again_latent
+                        info.start = "wide"
                     polished = both[1] if won else both[0]
         if ep_start is not None:
             motion, latent, polished, step, total = yield from _second_start(
@@ -638,8 +643,9 @@ class _CoarseToFine:
             lam_f = lambda_f_factor * self.lambda_f * s ** -_LAMBDA_F_SCALING
             level_iter = self.level_iters[li]
             for it in range(level_iter):
-                where = (f"{label or f'scale {li + 1}/{len(scales)}'}, "
-                         f"iteration {it + 1}/{level_iter}")
+                where = ", ".join(x for x in (
+                    label, f"scale {li + 1}/{len(scales)}" if len(scales) > 1 or not label
+                    else None, f"iteration {it + 1}/{level_iter}") if x)
                 at = {"scale": li + 1, "n_scales": len(scales), "iteration": it + 1}
                 if method != "ep":
                     # a record per splitting step: on a 1024 px copy an alternation

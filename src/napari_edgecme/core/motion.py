@@ -189,8 +189,6 @@ class CameraMotion:
         pose far from the rest does not enlarge it: a delta carrying 90 % of the weight
         with a stray pose 9 px away has a radius of 0.9 px at ``share = 0.8`` (the
         centroid's offset from the delta) where :meth:`max_displacement` reads 8.1 px.
-        The estimator's test of such a collapse (``estimate.COLLAPSE_MASS_RADIUS``) is
-        stated in it.
 
         Parameters
         ----------
