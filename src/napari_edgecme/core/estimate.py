@@ -147,6 +147,8 @@ COLLAPSE_EXTENT = 2.0
 #: ``benchmarks/results/wide-start.md``. Without it the estimation restarts from the wide
 #: motion only after a collapse to no blur (:data:`COLLAPSE_EXTENT`).
 WIDE_START = True
+#: Whether Xu+Ep's wide start keeps the edge-profile term of Eq. 22.
+WIDE_START_PROFILES = False
 #: The second, wide start runs with ``lambda_f`` times this (a sharp-edged latent then
 #: has to be explained by the blur).
 _RESTART_LAMBDA_F = 3.0
@@ -476,7 +478,9 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                            (f"no blur found (extent {extent:.1f} px): restarting"
                             if collapsed else "the second start") + " from a wide motion",
                            n_scales=len(scales))
-            again, again_latent, step = yield from run.iterate(
+            wide = run if method != "xu+ep" or WIDE_START_PROFILES else run.variant(
+                info, lambda_ip=0.0)
+            again, again_latent, step = yield from wide.iterate(
                 step, total, wide_start=True, lambda_f_factor=_RESTART_LAMBDA_F,
                 label="wide start")
             if collapsed:
@@ -606,14 +610,16 @@ class _CoarseToFine:
         self.profile_misfit: float | None = None
 
     def variant(self, info: EstimateInfo, *, scales=None, level_iters=None,
-                edge_spread: float | None = None) -> _CoarseToFine:
+                edge_spread: float | None = None,
+                lambda_ip: float | None = None) -> _CoarseToFine:
         """The same problem, not yet run, recording into ``info``: on the finest of
-        ``scales`` only, say, or with another edge spread."""
+        ``scales`` only, say, or with another edge spread or edge-profile weight."""
         return _CoarseToFine(
             self.work, self.intrinsics, self.model, self.blur_work,
             self.scales if scales is None else scales,
             self.level_iters if level_iters is None else level_iters, self.method,
-            self.profiles, self.gain, self.lambda_w, self.lambda_ip, self.lambda_f,
+            self.profiles, self.gain, self.lambda_w,
+            self.lambda_ip if lambda_ip is None else lambda_ip, self.lambda_f,
             self.preview, info,
             edge_spread=self.edge_spread if edge_spread is None else edge_spread,
             width_check=self.width_check)
