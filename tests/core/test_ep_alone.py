@@ -265,14 +265,18 @@ def one_case_profiles():
 
 @pytest.mark.parametrize("seed", [3, 4])
 def test_xu_ep_beats_xu_on_an_edge_rich_scene(seed):
-    """Measured PSF NCC, Xu -> Xu+Ep: 0.62 -> 0.86 (seed 3), 0.59 -> 0.90 (seed 4)."""
+    """Measured PSF NCC, Xu -> Xu+Ep: 0.63 -> 0.84 (seed 3), 0.84 -> 0.88 (seed 4).
+
+    Before Xu had its wide start (``estimate.WIDE_START``) it was 0.62 and 0.59 here and
+    the margin asked was 0.15; the wide start rescued Xu on seed 4, not Xu+Ep's lead
+    (seeds 5 and 6: 0.91 -> 0.94, 0.88 -> 0.94)."""
     case, _ = _shaken("rotation", 11, seed)
     focal = case.motion.intrinsics.focal_px
     ncc = {m: motion_psf_ncc(estimate_motion(case.blurred, m, "rotation", 13, focal, n_iter=3,
                                              rng=0).motion, case.motion)
            for m in ("xu", "xu+ep")}
     assert ncc["xu+ep"] >= 0.8
-    assert ncc["xu+ep"] >= ncc["xu"] + 0.15
+    assert ncc["xu+ep"] > ncc["xu"]
 
 
 def test_xu_ep_runs_as_xu_when_its_profiles_disagree():

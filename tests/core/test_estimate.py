@@ -70,8 +70,12 @@ def test_progress_records_arrive_in_order(uniform_case):
     assert steps == sorted(steps) and steps[-1] == records[-1].total
     assert all(r.step <= r.total for r in records)
     assert any(r.preview is not None for r in records)
+    # coarse to fine, twice: from the small blob, then from a wide motion (WIDE_START)
     scales = [r.scale for r in records if r.scale is not None]
-    assert scales == sorted(scales)
+    restart = next(i for i in range(1, len(scales)) if scales[i] < scales[i - 1])
+    assert scales[:restart] == sorted(scales[:restart])
+    assert scales[restart:] == sorted(scales[restart:]) and scales[restart] == 1
+    assert any("wide start" in r.message for r in records[restart:])
 
 
 def test_closing_the_generator_stops_the_work(uniform_case):
@@ -139,9 +143,12 @@ def test_bad_images_are_refused():
 
 def test_the_finest_scale_alternates_at_most_three_times(uniform_case):
     # more alternations there drift (estimate.py, _FINEST_UPDATES); coarser scales run n_iter
+    # (in each of the two coarse-to-fine passes: from the small blob and the wide start)
     est = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9, n_iter=5)
-    updates = [len(record.costs) for record in est.info.scales]
-    assert updates[:-1] == [5] * (len(updates) - 1) and updates[-1] == 3
+    finest = max(record.level for record in est.info.scales)
+    assert finest > 1 and len(est.info.scales) == 2 * finest
+    for record in est.info.scales:
+        assert len(record.costs) == (3 if record.level == finest else 5)
 
 
 def test_deblur_checks_the_deconvolution_before_estimating(uniform_case):
@@ -225,6 +232,9 @@ def test_a_stop_during_the_polish_returns_the_estimate_before_it(uniform_case, m
         if record.message.startswith("polish 1/"):
             raise StopIteration
 
+    # the polish that ends the estimation (the wide start's comparison polishes both of its
+    # candidates instead: below)
+    monkeypatch.setattr(estimate, "WIDE_START", False)
     stopped = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9,
                               callback=stop_in_polish)
     monkeypatch.setattr(estimate, "POLISH_UPDATES", 0)
@@ -233,3 +243,24 @@ def test_a_stop_during_the_polish_returns_the_estimate_before_it(uniform_case, m
     assert not stopped.info.converged
     np.testing.assert_array_equal(stopped.motion.poses, before.motion.poses)
     np.testing.assert_array_equal(stopped.motion.weights, before.motion.weights)
+
+
+def test_a_stop_while_comparing_the_two_starts_returns_the_first_ones_estimate(uniform_case):
+    from napari_edgecme.core import estimate
+
+    def stop_comparing(record):
+        if record.message.startswith("wide start: polishing"):
+            raise StopIteration
+
+    def keep_first_pass(record):  # the motion of the blob start, before the wide start runs
+        if record.message.startswith("the second start"):
+            raise StopIteration
+
+    stopped = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9,
+                              callback=stop_comparing)
+    first = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9,
+                            callback=keep_first_pass)
+    assert estimate.WIDE_START and not stopped.info.converged
+    assert "stopped by callback" in stopped.info.message
+    np.testing.assert_array_equal(stopped.motion.weights, first.motion.weights)
+    np.testing.assert_array_equal(stopped.motion.poses, first.motion.poses)

@@ -506,11 +506,13 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                     polished = both[1] if won else both[0]
         if ep_start is not None:
             motion, latent, polished, step, total = yield from _second_start(
-                run, ep_start, motion, latent, info, step, total, candidate=ep_candidate)
+                run, ep_start, motion, latent, info, step, total, candidate=ep_candidate,
+                polished=polished)
         info.converged = True
         info.message += "completed all scales"
     except StopRequested:
-        motion, latent = run.motion, run.latent
+        if motion is None:  # within the first pass: its estimate so far
+            motion, latent = run.motion, run.latent
         if motion is None:
             raise
         stopped = True
@@ -774,7 +776,7 @@ def gradient_sparsity(latent: np.ndarray, band: int) -> float:
 
 def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion, latent,
                   info: EstimateInfo, step: int, total: int, *,
-                  candidate: CameraMotion | None = None):
+                  candidate: CameraMotion | None = None, polished=None):
     """The finest-scale alternation of ``run`` again, from ``start``; the best estimate.
 
     The candidates are the first start's estimate ``motion``, the second start's, and
@@ -785,7 +787,8 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
     total)``: the estimate kept (before its polish, for the no-blur test; ``candidate``
     has no alternation of its own and is handed on polished), its latent, and its polish
     ``(motion, latent)`` -- None when the first estimate is kept because the second
-    collapsed to no blur or the comparison could not be made.
+    collapsed to no blur or the comparison could not be made. ``polished``, when given,
+    is ``motion``'s polish already made (by the wide start's comparison), not made again.
     """
     level_iters = run.level_iters[-1]
     total += level_iters
@@ -798,8 +801,8 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
     if other.max_displacement() < COLLAPSE_EXTENT:
         return motion, latent, None, step, total
     candidates = (motion, other) if candidate is None else (motion, other, candidate)
-    sparsity, polished, step, total = yield from _polish_candidates(run, candidates, label,
-                                                                    step, total)
+    sparsity, polished, step, total = yield from _polish_candidates(
+        run, candidates, label, step, total, made={} if polished is None else {0: polished})
     if sparsity is None:
         return motion, latent, None, step, total
     info.start_sparsity = sparsity
@@ -818,7 +821,8 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
     return polished[2][0], polished[2][1], polished[2], step, total
 
 
-def _polish_candidates(run: _CoarseToFine, candidates, label: str, step: int, total: int):
+def _polish_candidates(run: _CoarseToFine, candidates, label: str, step: int, total: int,
+                       made=None):
     """Polish candidate estimates and measure their latents' gradient sparsity.
 
     Each is polished (:func:`_polish`, at least one update) and the
@@ -826,11 +830,16 @@ def _polish_candidates(run: _CoarseToFine, candidates, label: str, step: int, to
     largest PSF, the same for all. A generator of progress records returning
     ``(sparsity, polished, step, total)``: the candidates' sparsities in their order
     (None when any cannot be measured) and their polishes ``(motion, latent)``.
+    ``made`` maps a candidate's index to its polish when it is already made.
     """
+    made = made or {}
     updates = max(1, POLISH_UPDATES)
-    total += len(candidates) * updates
+    total += (len(candidates) - len(made)) * updates
     polished = []
     for which, candidate in enumerate(candidates):
+        if which in made:
+            polished.append(made[which])
+            continue
         polished_motion, polished_latent, step = yield from relay_as(
             _polish(run, candidate, step, total, updates),
             Progress("estimate", step, total, f"{label}: polishing estimate {which + 1} of "
