@@ -60,10 +60,17 @@ def one_case(case: dict, motions: Path | None = None) -> dict:
         est.motion.save(motions / f"{case['name']}-final.json")
     if est.info.start_sparsity is None:  # no second start, or no comparison
         return row
-    # the second start's, the last polishes run (a collapse restart polishes two before
-    # them; the estimate kept is not polished again): the first start's, the second's,
-    # and the EpAlone estimate's when it was a candidate (estimate.EP_CANDIDATE)
-    candidates = polishes[-len(est.info.start_sparsity):]
+    # the second start's candidates: the first start's estimate, the second's, and the
+    # EpAlone estimate's when it was a candidate (estimate.EP_CANDIDATE). After the wide
+    # start's comparison (estimate.WIDE_START: two polishes, of the blob's estimate and
+    # the wide start's) the estimate it kept is not polished again: its polish is the one
+    # of those two that won
+    k = len(est.info.start_sparsity)
+    candidates = polishes[-k:]
+    if "start won (gradient sparsity" in est.info.message:
+        first, wide = polishes[-k - 1], polishes[-k]
+        kept = wide if "the wide start won" in est.info.message else first
+        candidates = [kept, *polishes[-(k - 1):]]
     run = candidates[0][0]
     level = run.finest
     # the L0 costs on the interior the sparsities were compared on (that of the larger PSF)

@@ -253,14 +253,14 @@ def test_a_stop_while_comparing_the_two_starts_returns_the_first_ones_estimate(u
             raise StopIteration
 
     def keep_first_pass(record):  # the motion of the blob start, before the wide start runs
-        if record.message.startswith("the second start"):
+        if record.message.startswith("the wide start"):
             raise StopIteration
 
     stopped = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9,
                               callback=stop_comparing)
     first = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9,
                             callback=keep_first_pass)
-    assert estimate.WIDE_START and not stopped.info.converged
+    assert estimate.WIDE_START and not stopped.info.converged and not first.info.converged
     assert "stopped by callback" in stopped.info.message
     np.testing.assert_array_equal(stopped.motion.weights, first.motion.weights)
     np.testing.assert_array_equal(stopped.motion.poses, first.motion.poses)

@@ -24,7 +24,9 @@ pyramid with ratio ``1/sqrt(2)``):
   and keeps the soft fit unless it explains the profiles clearly worse;
 * **Xu** alternates the L0-gradient latent update (Eq. 21) and the gradient-domain
   MDF update; **Xu+Ep** adds ``lambda_Ip`` times the edge-profile term (Eq. 22).
-  ``lambda_Ip = 0`` is exactly Xu. Xu+Ep first runs EpAlone on its profiles (the gate,
+  ``lambda_Ip = 0`` is exactly Xu. Both run the coarse-to-fine alternation twice, from
+  a small blob and from a wide motion (:data:`WIDE_START`), and keep the estimate whose
+  polished latent has the sparser gradients. Xu+Ep first runs EpAlone on its profiles (the gate,
   :data:`XU_EP_GATE`): profiles that disagree on one motion are dropped for Xu; profiles
   that agree give a second start of the finest-scale alternation (:data:`SECOND_START`),
   and of the two starts' polished estimates the one whose hyper-Laplacian latent has the
@@ -182,9 +184,12 @@ class EstimateInfo:
     seconds: float = 0.0
     converged: bool = False
     message: str = ""
-    #: Xu, Xu+Ep: runs of the alternation from a wide motion (:data:`WIDE_START`, or
-    #: after a collapse to no blur)
+    #: runs of the alternation from a wide motion (Xu, Xu+Ep: :data:`WIDE_START`; any
+    #: method after a collapse to no blur)
     restarts: int = 0
+    #: Xu, Xu+Ep: the gradient sparsity of the polished latents of the first start's
+    #: estimate and of the wide start's (:data:`WIDE_START`; the lower is kept)
+    wide_sparsity: tuple[float, float] | None = None
     #: True when no blur was found (the motion is then the identity)
     no_blur: bool = False
     #: L0 cost (Eq. 21, per pixel) of the estimate and of the identity motion
@@ -390,7 +395,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     work_profiles = None
     ep_start = None  # Xu+Ep: the EpAlone estimate of its gate, the second start
     ep_candidate = None  # Xu+Ep: the same, a candidate itself (EP_CANDIDATE)
-    polished = None  # Xu+Ep: the polish of the estimate kept, done to compare the candidates
+    polished = None  # the polish of the estimate kept, made to compare the starts
     if method != "xu":
         if profiles is None:
             from .edges import iter_extract_edge_profiles
@@ -473,7 +478,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 f"the best one; at most {EP_MAX_MISFIT:.0%} is accepted); try method "
                 "'xu+ep', which also uses the image")
         # -- the wide start (Xu, Xu+Ep): the alternation again from a wide motion, with a
-        # stronger L0 weight; every method restarts so after a collapse to no blur
+        # stronger L0 weight; after a collapse to no blur every method restarts so
         extent = motion.max_displacement()
         collapsed = extent < COLLAPSE_EXTENT
         if not constant and (collapsed or (WIDE_START and method != "ep")):
@@ -481,10 +486,11 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
             total += sum(level_iters)
             yield Progress("estimate", step, total,
                            (f"no blur found (extent {extent:.1f} px): restarting"
-                            if collapsed else "the second start") + " from a wide motion",
+                            if collapsed else "the wide start: the alternation again")
+                           + " from a wide motion",
                            n_scales=len(scales))
-            wide = run if method != "xu+ep" or WIDE_START_PROFILES else run.variant(
-                info, lambda_ip=0.0)
+            wide = (run if method != "xu+ep" or WIDE_START_PROFILES or not WIDE_START
+                    else run.variant(info, lambda_ip=0.0))
             again, again_latent, step = yield from wide.iterate(
                 step, total, wide_start=True, lambda_f_factor=_RESTART_LAMBDA_F,
                 label="wide start")
@@ -497,6 +503,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 sparsity, both, step, total = yield from _polish_candidates(
                     run, (motion, again), "wide start", step, total)
                 if sparsity is not None:
+                    info.wide_sparsity = sparsity
                     won = sparsity[1] < sparsity[0]
                     info.message += (f"the {'wide' if won else 'first'} start won (gradient "
                                      f"sparsity {min(sparsity):.4g} vs {max(sparsity):.4g}); ")
@@ -555,8 +562,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     # -- polish: the MDF fitted once more, against the hyper-Laplacian latent ---------
     # after the no-blur test, which asks the L0 objective about the alternation's own
     # estimate
-    if polished is not None and POLISH_UPDATES and not info.no_blur:
-        motion, latent = polished  # polished by the second start's comparison
+    if polished is not None and POLISH_UPDATES and not info.no_blur and not stopped:
+        motion, latent = polished  # polished by the comparison of the starts
     elif POLISH_UPDATES and method != "ep" and not stopped and not info.no_blur:
         total += POLISH_UPDATES
         try:
@@ -799,12 +806,13 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
     other, other_latent, step = yield from second.iterate(step, total, start=start,
                                                           label=label)
     if other.max_displacement() < COLLAPSE_EXTENT:
-        return motion, latent, None, step, total
+        return motion, latent, polished, step, total
     candidates = (motion, other) if candidate is None else (motion, other, candidate)
+    made = {} if polished is None else {0: polished}
     sparsity, polished, step, total = yield from _polish_candidates(
-        run, candidates, label, step, total, made={} if polished is None else {0: polished})
+        run, candidates, label, step, total, made=made)
     if sparsity is None:
-        return motion, latent, None, step, total
+        return motion, latent, made.get(0), step, total
     info.start_sparsity = sparsity
     best = int(np.argmin(sparsity))
     if best == 0:

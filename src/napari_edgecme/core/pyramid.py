@@ -133,7 +133,8 @@ class Level:
 def initial_weights(level: Level, previous: CameraMotion | None,
                      wide: bool = False) -> np.ndarray:
     if previous is None and wide:
-        # a blob over the whole grid (a third of its reach): the restart after a collapse
+        # a blob over the whole grid (a third of its reach): the wide start (Xu, Xu+Ep)
+        # and the restart after a collapse
         half = np.maximum(level.grid.half, 1).astype(float)
         offsets = np.indices(level.grid.counts) - np.asarray(level.grid.half).reshape(
             (-1,) + (1,) * len(level.grid.counts))
