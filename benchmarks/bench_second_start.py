@@ -67,10 +67,11 @@ def one_case(case: dict, motions: Path | None = None) -> dict:
     # of those two that won
     k = len(est.info.start_sparsity)
     candidates = polishes[-k:]
-    if "start won (gradient sparsity" in est.info.message:
+    if est.info.wide_sparsity is not None:
         first, wide = polishes[-k - 1], polishes[-k]
-        kept = wide if "the wide start won" in est.info.message else first
-        candidates = [kept, *polishes[-(k - 1):]]
+        first_sparsity, wide_sparsity = est.info.wide_sparsity
+        candidates = [wide if wide_sparsity < first_sparsity else first,
+                      *polishes[-(k - 1):]]
     run = candidates[0][0]
     level = run.finest
     # the L0 costs on the interior the sparsities were compared on (that of the larger PSF)

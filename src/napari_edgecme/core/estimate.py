@@ -489,8 +489,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                             if collapsed else "the wide start: the alternation again")
                            + " from a wide motion",
                            n_scales=len(scales))
-            wide = (run if method != "xu+ep" or WIDE_START_PROFILES or not WIDE_START
-                    else run.variant(info, lambda_ip=0.0))
+            without_profiles = method == "xu+ep" and WIDE_START and not WIDE_START_PROFILES
+            wide = run.variant(info, lambda_ip=0.0) if without_profiles else run
             again, again_latent, step = yield from wide.iterate(
                 step, total, wide_start=True, lambda_f_factor=_RESTART_LAMBDA_F,
                 label="wide start")
@@ -663,9 +663,10 @@ class _CoarseToFine:
             lam_f = lambda_f_factor * self.lambda_f * s ** -_LAMBDA_F_SCALING
             level_iter = self.level_iters[li]
             for it in range(level_iter):
-                where = ", ".join(x for x in (
-                    label, f"scale {li + 1}/{len(scales)}" if len(scales) > 1 or not label
-                    else None, f"iteration {it + 1}/{level_iter}") if x)
+                parts = [label] if label else []
+                if len(scales) > 1 or not label:  # a labelled single level needs no scale
+                    parts.append(f"scale {li + 1}/{len(scales)}")
+                where = ", ".join([*parts, f"iteration {it + 1}/{level_iter}"])
                 at = {"scale": li + 1, "n_scales": len(scales), "iteration": it + 1}
                 if method != "ep":
                     # a record per splitting step: on a 1024 px copy an alternation
@@ -793,9 +794,10 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
     PSF. A generator of progress records returning ``(motion, latent, polished, step,
     total)``: the estimate kept (before its polish, for the no-blur test; ``candidate``
     has no alternation of its own and is handed on polished), its latent, and its polish
-    ``(motion, latent)`` -- None when the first estimate is kept because the second
-    collapsed to no blur or the comparison could not be made. ``polished``, when given,
-    is ``motion``'s polish already made (by the wide start's comparison), not made again.
+    ``(motion, latent)``. ``polished``, when given, is ``motion``'s polish already made
+    (by the wide start's comparison): it is not made again, and it is what is handed on
+    when the first estimate is kept because the second collapsed to no blur or the
+    comparison could not be made (None if it was not given).
     """
     level_iters = run.level_iters[-1]
     total += level_iters
