@@ -106,3 +106,34 @@ def test_edge_profile_term_uses_the_exact_masked_eff_rows(setting):
     term = edge_profile_term(prediction, target, mask, grid, basis)
     resid = op.forward(w)[mask] - target[mask]
     assert term.value(w) == pytest.approx(resid @ resid / 2)
+
+
+def test_clean_mdf_drops_weights_under_the_floor_and_light_clusters():
+    """clean_mdf keeps the camera's path: weights of at least WEIGHT_FLOOR x the largest
+    on it, and clusters of at least CLUSTER_FLOOR x the heaviest's mass; the rest is
+    zeroed, the MDF renormalised and its centroid moved to the grid's centre."""
+    from napari_edgecme.core.pyramid import CLUSTER_FLOOR, WEIGHT_FLOOR, clean_mdf
+
+    w = np.zeros((15, 15))
+    w[7, 3:11] = 1.0  # the path: eight poses along one row through the centre
+    w[7, 11] = WEIGHT_FLOOR  # a faint end of the path, at the floor
+    w[7, 12] = 0.5 * WEIGHT_FLOOR  # fainter still: under the floor
+    w[1, 1] = 0.5 * CLUSTER_FLOOR * 8  # an isolated ghost: half the share a cluster needs
+    cleaned = clean_mdf(w)
+    assert cleaned.sum() == pytest.approx(1.0)
+    assert cleaned[1, 1] == 0 and cleaned[7, 12] == 0  # ghost and sub-floor weight gone
+    kept = np.flatnonzero(cleaned[7] > 0)
+    assert kept.tolist() == list(range(3, 12))  # the path and its faint end
+    idx = np.indices(w.shape).reshape(2, -1)
+    assert np.allclose(idx @ cleaned.ravel(), [7, 7], atol=0.5)  # re-centred
+
+
+def test_clean_mdf_floor_is_a_parameter():
+    """A lower ``weight_floor`` keeps a faint tail that the default drops."""
+    from napari_edgecme.core.pyramid import WEIGHT_FLOOR, clean_mdf
+
+    w = np.zeros((9, 9))
+    w[4, 2:7] = 1.0
+    w[4, 7] = 0.5 * WEIGHT_FLOOR
+    assert clean_mdf(w)[4].astype(bool).sum() == 5
+    assert clean_mdf(w, weight_floor=0.25 * WEIGHT_FLOOR)[4].astype(bool).sum() == 6

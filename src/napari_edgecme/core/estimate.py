@@ -9,8 +9,9 @@ pyramid with ratio ``1/sqrt(2)``):
   poses onto the finer grid; the active pose set is its support dilated by one
   grid step, so the problem stays small where the grid is fine;
 * every MDF update solves a non-negative L1 problem (:func:`~.lasso.nonneg_lasso`),
-  then drops weights below ``1/20`` of the largest, renormalises and re-centres the
-  MDF on the grid (claims 1-2: the result is defined up to a homography);
+  then drops weights below a floor -- ``1/20`` of the largest for EpAlone, ``1/50`` for
+  Xu and Xu+Ep (:data:`LATENT_WEIGHT_FLOOR`) -- renormalises and re-centres the MDF on
+  the grid (claims 1-2: the result is defined up to a homography);
 * **EpAlone** minimises ``sum_i c_i ||M_i w - dE_i||^2 + lambda_w ||w||_1`` (Eq. 16 on
   the measurement matrix of Eqs. 13-15, :mod:`~.measurement`) -- no latent image. The
   paper solves the image-domain Eq. 19 instead, for speed; the direct form is cheaper
@@ -79,6 +80,7 @@ from .profile_fit import (
 )
 from .progress import Progress, StopRequested, drive, relay_as
 from .pyramid import (
+    WEIGHT_FLOOR,
     Level,
     ScaleRecord,
     contrast_gain,
@@ -131,6 +133,19 @@ _SALIENT_START = 0.1  # share of latent gradients used by the first MDF update o
 #: two sets), a higher mean PSF NCC and 30 % less CPU time.
 _FINEST_UPDATES = 3
 _MAX_ITER = 1000  # cap on n_iter (alternations per scale)
+#: MDF weights below this fraction of the largest are dropped after every MDF update of
+#: Xu and Xu+Ep, in the alternation and in the polish (:func:`~.pyramid.clean_mdf`).
+#: Whyte et al.'s 1/20 (:data:`~.pyramid.WEIGHT_FLOOR`) cut the light poses where a camera
+#: lingers or trails off at every update, and the estimates came out too small (median
+#: extent over the truth's on ``lai``: Xu 0.94, Xu+Ep 0.975; ``levin`` kernel 6 lost its
+#: 10 px trail). With 1/50: ``lai`` Xu 24.13 -> 24.22 dB, Xu+Ep 24.54 -> 24.55 (people
+#: -0.15, the other categories 0 to +0.09), extent 0.97 and 0.99; ``levin`` Xu 29.22 ->
+#: 29.67, Xu+Ep 29.24 -> 29.73 (share of the oracle's gain 67 -> 72 %); about 1.05x the
+#: CPU time. EpAlone (and Xu+Ep's runs of it) keeps 1/20: with 1/100 there too, the
+#: light poses of the profiles' fit were noise, and Xu+Ep lost 0.45 dB on people. The
+#: full-resolution refinement keeps 1/20 (not measured). See
+#: ``benchmarks/results/weight-floor.md``.
+LATENT_WEIGHT_FLOOR = 1.0 / 50.0
 #: An estimate whose blur extent (px of the working copy, :meth:`CameraMotion.max_displacement`)
 #: is below this has collapsed to the no-blur solution.
 COLLAPSE_EXTENT = 2.0
@@ -679,7 +694,9 @@ class _CoarseToFine:
                 weights, cost, n_lasso = yield from relay_as(
                     iter_mdf_update(level, weights, active, self.latent, ep_data,
                                     self.lambda_w, self.lambda_ip, method,
-                                    salient=_SALIENT_START * 1.1 ** min(it, 24)),
+                                    salient=_SALIENT_START * 1.1 ** min(it, 24),
+                                    weight_floor=(WEIGHT_FLOOR if method == "ep"
+                                                  else LATENT_WEIGHT_FLOOR)),
                     Progress("estimate", step, total, f"{where}: camera motion", **at))
                 if method == "ep":  # IRLS: each profile weighed by its agreement and width
                     ep_data.update(level.cache["measurement"], weights[active])
@@ -932,7 +949,8 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int,
         latent = (latent if unit is g else latent * (hi - lo) + lo).astype(g.dtype, copy=False)
         weights, _cost, _n = yield from relay_as(
             iter_mdf_update(level, weights, active, latent, ep_data, run.lambda_w,
-                            lambda_ip, run.method, salient=POLISH_SALIENT),
+                            lambda_ip, run.method, salient=POLISH_SALIENT,
+                            weight_floor=LATENT_WEIGHT_FLOOR),
             Progress("estimate", step, total, f"{where}: refitting the motion",
                      n_scales=n_scales))
         step += 1

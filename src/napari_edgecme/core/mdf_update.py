@@ -17,7 +17,7 @@ from .lasso import iter_nonneg_lasso
 from .mdf import border_taper, edge_profile_term, gradient_term, psf_basis
 from .measurement import measurement_matrix
 from .progress import Progress, drive
-from .pyramid import Level, clean_mdf
+from .pyramid import WEIGHT_FLOOR, Level, clean_mdf
 
 __all__ = ["GRADIENT_SMOOTHING", "LASSO_MAX_ITER", "data_term", "edge_images", "iter_mdf_update",
            "iter_solve_update", "mdf_update", "salient_gradients", "solve_update"]
@@ -72,13 +72,14 @@ def salient_gradients(latent_grad: np.ndarray, blurred: np.ndarray, fraction: fl
 
 
 def mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_ip, method,
-              salient: float = 1.0):
+              salient: float = 1.0, weight_floor: float = WEIGHT_FLOOR):
     """One MDF update on the active poses (Eq. 16 for EpAlone, Eq. 22 otherwise).
 
     ``ep_data`` is the level's :class:`~.profile_fit.RobustProfileFit` (EpAlone) or its
     ``(I_p, I_ep, M)`` images (Xu+Ep), or None (Xu). The active set is fixed within a
     level, so its tiles, PSF basis, measurement matrix and edge-profile term are built
-    once per level and kept in ``level.cache``.
+    once per level and kept in ``level.cache``. ``weight_floor`` is the cleaning's
+    (:func:`~.pyramid.clean_mdf`).
 
     Returns
     -------
@@ -86,7 +87,7 @@ def mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_
         The cleaned MDF on ``level.grid`` (shape ``grid.counts``), the final lasso cost.
     """
     return drive(iter_mdf_update(level, weights, active, latent, ep_data, lambda_w,
-                                 lambda_ip, method, salient))
+                                 lambda_ip, method, salient, weight_floor))
 
 
 def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient: float = 1.0,
@@ -137,15 +138,17 @@ def data_term(level: Level, active, latent, ep_data, lambda_ip, method, salient:
 
 
 def iter_mdf_update(level: Level, weights, active, latent, ep_data, lambda_w, lambda_ip,
-                    method, salient: float = 1.0):
+                    method, salient: float = 1.0, weight_floor: float = WEIGHT_FLOOR):
     """:func:`mdf_update` as a generator: a record after the data term, one per FISTA
     iteration of the lasso; returns what :func:`mdf_update` returns."""
     term = data_term(level, active, latent, ep_data, lambda_ip, method, salient)
     yield Progress("MDF update", 0, 1, "data term ready")
-    return (yield from iter_solve_update(term, weights, active, lambda_w))
+    return (yield from iter_solve_update(term, weights, active, lambda_w,
+                                         weight_floor=weight_floor))
 
 
-def iter_solve_update(term, weights, active, lambda_w, max_iter: int = LASSO_MAX_ITER):
+def iter_solve_update(term, weights, active, lambda_w, max_iter: int = LASSO_MAX_ITER,
+                      weight_floor: float = WEIGHT_FLOOR):
     """:func:`solve_update` as a solver generator: one record per FISTA iteration."""
     term = term.scaled(1.0 / max(term.constant, 1e-30))
     result = yield from iter_nonneg_lasso(term, lambda_w, weights[active], max_iter=max_iter)
@@ -154,15 +157,17 @@ def iter_solve_update(term, weights, active, lambda_w, max_iter: int = LASSO_MAX
     cost = result.costs[-1] if result.costs else float("nan")
     if not new.max() > 0:  # the L1 weight swallowed everything: keep the previous MDF
         return weights, cost, result.nit
-    return clean_mdf(new), cost, result.nit
+    return clean_mdf(new, weight_floor), cost, result.nit
 
 
-def solve_update(term, weights, active, lambda_w, max_iter: int = LASSO_MAX_ITER):
+def solve_update(term, weights, active, lambda_w, max_iter: int = LASSO_MAX_ITER,
+                 weight_floor: float = WEIGHT_FLOOR):
     """Solve the non-negative L1 problem of one MDF update and clean the result.
 
     ``term`` is normalised by its data energy first, so that ``lambda_w`` means the same at
     every scale and image size. ``weights`` (shape of the grid) warm-starts the solver and
     is returned unchanged when the L1 weight swallows everything. ``max_iter`` caps the
-    FISTA iterations. The plain-function face of :func:`iter_solve_update`.
+    FISTA iterations; ``weight_floor`` is the cleaning's (:func:`~.pyramid.clean_mdf`).
+    The plain-function face of :func:`iter_solve_update`.
     """
-    return drive(iter_solve_update(term, weights, active, lambda_w, max_iter))
+    return drive(iter_solve_update(term, weights, active, lambda_w, max_iter, weight_floor))

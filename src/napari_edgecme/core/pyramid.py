@@ -160,15 +160,18 @@ def dilate(support: np.ndarray, steps: int = 1) -> np.ndarray:
     return ndimage.binary_dilation(support, structure, iterations=steps)
 
 
-def clean_mdf(weights: np.ndarray) -> np.ndarray:
-    """Drop weights below 1/20 of the largest and small isolated clusters; renormalise; re-centre.
+def clean_mdf(weights: np.ndarray, weight_floor: float = WEIGHT_FLOOR) -> np.ndarray:
+    """Drop weights below ``weight_floor`` x the largest and small isolated clusters;
+    renormalise; re-centre.
 
     A camera traces one connected path through pose space: clusters of the support
-    (connected on the grid, diagonals included) holding less than a tenth of the total
-    weight are ghosts fitted to deconvolution artefacts, and are removed (Pan et al.
-    do the same on kernels).
+    (connected on the grid, diagonals included) holding less than :data:`CLUSTER_FLOOR`
+    of the heaviest cluster's weight are ghosts fitted to deconvolution artefacts, and are
+    removed (Pan et al. do the same on kernels). ``weight_floor`` defaults to
+    :data:`WEIGHT_FLOOR` (Whyte et al.'s 1/20); Xu and Xu+Ep use a lower one
+    (:data:`~.estimate.LATENT_WEIGHT_FLOOR`).
     """
-    w = np.where(weights >= WEIGHT_FLOOR * weights.max(), weights, 0.0)
+    w = np.where(weights >= weight_floor * weights.max(), weights, 0.0)
     w /= w.sum()
     if CLUSTER_FLOOR > 0:
         labels, n = ndimage.label(w > 0, np.ones((3,) * w.ndim, bool))
