@@ -77,7 +77,7 @@ def targets(rows: list[dict], methods) -> list[dict]:
             out.append(("Xu+Ep mean >= Xu mean + 0.3 dB", f"{statistics.fmean(d):+.2f} dB",
                         statistics.fmean(d) >= 0.3))
             share = float(np.mean(np.asarray(d) >= -0.2))
-            out.append(("Xu+Ep >= Xu - 0.2 dB on >= 85% of the cases", f"{share:.0%}",
+            out.append(("Xu+Ep >= Xu - 0.2 dB on >= 85% of the cases", f"{share:.1%}",
                         share >= 0.85))
     if "ep" in methods:
         ok = _ok(rows, "ep")
@@ -86,7 +86,7 @@ def targets(rows: list[dict], methods) -> list[dict]:
         worse = sum(r["gain"] < -0.5 for r in ok)
         out.append(("EpAlone mean >= blurred + 2 dB", fmt(gain, "+.2f") + " dB",
                     None if gain is None else gain >= 2))
-        out.append(("EpAlone runs on >= 90% of the cases", f"{ran:.0%}", ran >= 0.9))
+        out.append(("EpAlone runs on >= 90% of the cases", f"{ran:.1%}", ran >= 0.9))
         out.append(("EpAlone never below the blurred input by > 0.5 dB",
                     f"{worse} cases below", worse == 0))
     for key in methods:
@@ -95,7 +95,7 @@ def targets(rows: list[dict], methods) -> list[dict]:
         share = mean_or_none([r.get("share") for r in _ok(rows, key)])
         bound = 0.5 if rows and rows[0]["model"] == "rotation" else 0.75
         out.append((f"{METHODS[key]} recovers >= {bound:.0%} of the oracle's gain "
-                    "(mean of per-case ratios)", fmt(share, ".0%"),
+                    "(mean of per-case ratios)", fmt(share, ".1%"),
                     None if share is None else share >= bound))
     return [{"target": t, "measured": m, "met": met} for t, m, met in out]
 
