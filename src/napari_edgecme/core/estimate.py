@@ -143,7 +143,8 @@ _MAX_ITER = 1000  # cap on n_iter (alternations per scale)
 #: 29.67, Xu+Ep 29.24 -> 29.73 (share of the oracle's gain 67 -> 72 %); about 1.05x the
 #: CPU time. EpAlone (and Xu+Ep's runs of it) keeps 1/20: with 1/100 there too, the
 #: light poses of the profiles' fit were noise, and Xu+Ep lost 0.45 dB on people. The
-#: full-resolution refinement keeps 1/20 (not measured). See
+#: full-resolution refinement keeps 1/20 (1/50 there was probed on one 12 MP case only:
+#: PSF NCC 0.572 -> 0.563, share of the oracle's gain 0.55 -> 0.57). See
 #: ``benchmarks/results/weight-floor.md``.
 LATENT_WEIGHT_FLOOR = 1.0 / 50.0
 #: An estimate whose blur extent (px of the working copy, :meth:`CameraMotion.max_displacement`)
