@@ -275,3 +275,29 @@ def test_a_stop_while_comparing_the_two_starts_returns_the_first_ones_estimate(u
     assert "stopped by callback" in stopped.info.message
     np.testing.assert_array_equal(stopped.motion.weights, first.motion.weights)
     np.testing.assert_array_equal(stopped.motion.poses, first.motion.poses)
+
+
+def test_xu_cleans_its_mdf_with_the_latent_floor_and_epalone_with_whytes(uniform_case,
+                                                                        monkeypatch):
+    """Every MDF update of Xu (alternation, wide start, polish) drops weights under
+    LATENT_WEIGHT_FLOOR of the largest; every update of EpAlone under WEIGHT_FLOOR."""
+    from napari_edgecme.core import estimate, mdf_update
+    from napari_edgecme.core.pyramid import WEIGHT_FLOOR
+
+    floors = []
+    original = mdf_update.clean_mdf
+
+    def recording(weights, weight_floor=WEIGHT_FLOOR):
+        floors.append(weight_floor)
+        return original(weights, weight_floor)
+
+    monkeypatch.setattr(mdf_update, "clean_mdf", recording)
+    estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9)
+    assert floors and set(floors) == {estimate.LATENT_WEIGHT_FLOOR}
+    assert estimate.LATENT_WEIGHT_FLOOR < WEIGHT_FLOOR
+    floors.clear()
+    try:
+        estimate_motion(uniform_case.blurred, "ep", "translation", max_blur=9)
+    except ValueError:  # a refusal after the fit still ran its updates
+        pass
+    assert floors and set(floors) == {WEIGHT_FLOOR}

@@ -115,17 +115,19 @@ def test_clean_mdf_drops_weights_under_the_floor_and_light_clusters():
     from napari_edgecme.core.pyramid import CLUSTER_FLOOR, WEIGHT_FLOOR, clean_mdf
 
     w = np.zeros((15, 15))
-    w[7, 3:11] = 1.0  # the path: eight poses along one row through the centre
-    w[7, 11] = WEIGHT_FLOOR  # a faint end of the path, at the floor
-    w[7, 12] = 0.5 * WEIGHT_FLOOR  # fainter still: under the floor
-    w[1, 1] = 0.5 * CLUSTER_FLOOR * 8  # an isolated ghost: half the share a cluster needs
+    w[3, 3:11] = 1.0  # the path: eight poses along a row 4 steps above the centre
+    w[3, 11] = WEIGHT_FLOOR  # a faint end of the path, at the floor
+    w[3, 12] = 0.5 * WEIGHT_FLOOR  # fainter still: under the floor
+    w[12, 1] = 0.5 * CLUSTER_FLOOR * 8  # an isolated ghost: half the share a cluster needs
     cleaned = clean_mdf(w)
     assert cleaned.sum() == pytest.approx(1.0)
-    assert cleaned[1, 1] == 0 and cleaned[7, 12] == 0  # ghost and sub-floor weight gone
+    # re-centred: the path moved down to the centre row, its columns unchanged
+    assert not cleaned[3].any()
     kept = np.flatnonzero(cleaned[7] > 0)
-    assert kept.tolist() == list(range(3, 12))  # the path and its faint end
+    assert kept.tolist() == list(range(3, 12))  # the path and its faint end; not col 12
+    assert np.count_nonzero(cleaned) == 9  # the ghost is gone too
     idx = np.indices(w.shape).reshape(2, -1)
-    assert np.allclose(idx @ cleaned.ravel(), [7, 7], atol=0.5)  # re-centred
+    assert np.allclose(idx @ cleaned.ravel(), [7, 7], atol=0.5)
 
 
 def test_clean_mdf_floor_is_a_parameter():

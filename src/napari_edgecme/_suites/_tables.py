@@ -124,7 +124,7 @@ def truth_markdown(result: dict) -> str:
         table.append([f"**{s['group']}**" if s["group"] == "all" else s["group"], s["n"],
                       fmt(s["blurred_psnr"], ".2f"),
                       *(cell(s[k], "psnr", ".2f") + ran(s[k], s["n"]) for k in keys),
-                      *(cell(s[k], "share", ".0%") for k in methods if k != "ep")])
+                      *(cell(s[k], "share", ".1%") for k in methods if k != "ep")])
     lines += [f"## Mean PSNR (dB) per {group}", "",
               markdown_table(header, table, "lr" + "r" * (len(header) - 2)), "",
               "The share of the oracle's gain is the mean over cases of (method - blurred) / "

@@ -133,19 +133,18 @@ _SALIENT_START = 0.1  # share of latent gradients used by the first MDF update o
 #: two sets), a higher mean PSF NCC and 30 % less CPU time.
 _FINEST_UPDATES = 3
 _MAX_ITER = 1000  # cap on n_iter (alternations per scale)
-#: MDF weights below this fraction of the largest are dropped after every MDF update of
-#: Xu and Xu+Ep, in the alternation and in the polish (:func:`~.pyramid.clean_mdf`).
-#: Whyte et al.'s 1/20 (:data:`~.pyramid.WEIGHT_FLOOR`) cut the light poses where a camera
-#: lingers or trails off at every update, and the estimates came out too small (median
-#: extent over the truth's on ``lai``: Xu 0.94, Xu+Ep 0.975; ``levin`` kernel 6 lost its
-#: 10 px trail). With 1/50: ``lai`` Xu 24.13 -> 24.22 dB, Xu+Ep 24.54 -> 24.55 (people
-#: -0.15, the other categories 0 to +0.09), extent 0.97 and 0.99; ``levin`` Xu 29.22 ->
-#: 29.67, Xu+Ep 29.24 -> 29.73 (share of the oracle's gain 67 -> 72 %); about 1.05x the
-#: CPU time. EpAlone (and Xu+Ep's runs of it) keeps 1/20: with 1/100 there too, the
-#: light poses of the profiles' fit were noise, and Xu+Ep lost 0.45 dB on people. The
-#: full-resolution refinement keeps 1/20 (1/50 there was probed on one 12 MP case only:
-#: PSF NCC 0.572 -> 0.563, share of the oracle's gain 0.55 -> 0.57). See
-#: ``benchmarks/results/weight-floor.md``.
+#: MDF weights below this fraction of the largest are dropped after every MDF update of Xu and
+#: Xu+Ep, in the alternation and in the polish (:func:`~.pyramid.clean_mdf`). Whyte et al.'s 1/20
+#: (:data:`~.pyramid.WEIGHT_FLOOR`) cut the light poses where a camera lingers or trails off at
+#: every update, and the estimates came out too small (median extent over the truth's on ``lai``: Xu
+#: 0.94, Xu+Ep 0.975; ``levin`` kernel 6 lost its 10 px trail). With 1/50: ``lai`` Xu 24.13 -> 24.22
+#: dB, Xu+Ep 24.54 -> 24.55 (people -0.15, the other categories 0 to +0.09), extent 0.97 and 0.99;
+#: ``levin`` Xu 29.22 -> 29.67, Xu+Ep 29.24 -> 29.73 (share of the oracle's gain: Xu 66 -> 71 %,
+#: Xu+Ep 67 -> 72 %); median CPU time 1.08x (Xu) and 1.03x (Xu+Ep) on ``lai``. EpAlone (and Xu+Ep's
+#: runs of it) keeps 1/20: with 1/100 there too, the light poses of the profiles' fit were noise,
+#: and Xu+Ep lost 0.45 dB on people. The full-resolution refinement keeps 1/20 (1/50 there was
+#: probed on one 12 MP case only: PSF NCC 0.572 -> 0.563, share of the oracle's gain 0.55 -> 0.57).
+#: See ``benchmarks/results/weight-floor.md``.
 LATENT_WEIGHT_FLOOR = 1.0 / 50.0
 #: An estimate whose blur extent (px of the working copy, :meth:`CameraMotion.max_displacement`)
 #: is below this has collapsed to the no-blur solution.
