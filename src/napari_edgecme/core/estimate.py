@@ -146,6 +146,14 @@ _MAX_ITER = 1000  # cap on n_iter (alternations per scale)
 #: probed on one 12 MP case only: PSF NCC 0.572 -> 0.563, share of the oracle's gain 0.55 -> 0.57).
 #: See ``benchmarks/results/weight-floor.md``.
 LATENT_WEIGHT_FLOOR = 1.0 / 50.0
+
+
+def _weight_floor(method: str) -> float:
+    """The MDF weight floor of ``method``'s updates: :data:`~.pyramid.WEIGHT_FLOOR` for
+    EpAlone, :data:`LATENT_WEIGHT_FLOOR` for Xu and Xu+Ep."""
+    return WEIGHT_FLOOR if method == "ep" else LATENT_WEIGHT_FLOOR
+
+
 #: An estimate whose blur extent (px of the working copy, :meth:`CameraMotion.max_displacement`)
 #: is below this has collapsed to the no-blur solution.
 COLLAPSE_EXTENT = 2.0
@@ -695,8 +703,7 @@ class _CoarseToFine:
                     iter_mdf_update(level, weights, active, self.latent, ep_data,
                                     self.lambda_w, self.lambda_ip, method,
                                     salient=_SALIENT_START * 1.1 ** min(it, 24),
-                                    weight_floor=(WEIGHT_FLOOR if method == "ep"
-                                                  else LATENT_WEIGHT_FLOOR)),
+                                    weight_floor=_weight_floor(method)),
                     Progress("estimate", step, total, f"{where}: camera motion", **at))
                 if method == "ep":  # IRLS: each profile weighed by its agreement and width
                     ep_data.update(level.cache["measurement"], weights[active])
@@ -828,24 +835,24 @@ def _second_start(run: _CoarseToFine, start: CameraMotion, motion: CameraMotion,
         return motion, latent, polished, step, total
     candidates = (motion, other) if candidate is None else (motion, other, candidate)
     made = {} if polished is None else {0: polished}
-    sparsity, polished, step, total = yield from _polish_candidates(
+    sparsity, polishes, step, total = yield from _polish_candidates(
         run, candidates, label, step, total, made=made)
     if sparsity is None:
-        return motion, latent, made.get(0), step, total
+        return motion, latent, polished, step, total
     info.start_sparsity = sparsity
     best = int(np.argmin(sparsity))
     if best == 0:
-        return motion, latent, polished[0], step, total
+        return motion, latent, polishes[0], step, total
     others = ", ".join(f"{x:.4g}" for k, x in enumerate(sparsity) if k != best)
     if best == 1:
         info.start = "edge profiles"
         info.message += (f"the start from the edge profiles' estimate won (gradient "
                          f"sparsity {sparsity[1]:.4g} vs {others}); ")
-        return other, other_latent, polished[1], step, total
+        return other, other_latent, polishes[1], step, total
     info.start = "EpAlone"
     info.message += (f"the edge profiles' own estimate, polished, won (gradient sparsity "
                      f"{sparsity[2]:.4g} vs {others}); ")
-    return polished[2][0], polished[2][1], polished[2], step, total
+    return polishes[2][0], polishes[2][1], polishes[2], step, total
 
 
 def _polish_candidates(run: _CoarseToFine, candidates, label: str, step: int, total: int,
@@ -950,7 +957,7 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int,
         weights, _cost, _n = yield from relay_as(
             iter_mdf_update(level, weights, active, latent, ep_data, run.lambda_w,
                             lambda_ip, run.method, salient=POLISH_SALIENT,
-                            weight_floor=LATENT_WEIGHT_FLOOR),
+                            weight_floor=_weight_floor(run.method)),
             Progress("estimate", step, total, f"{where}: refitting the motion",
                      n_scales=n_scales))
         step += 1
