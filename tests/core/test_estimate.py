@@ -315,19 +315,31 @@ def test_stretched_scales_every_pose_about_the_centroid():
     np.testing.assert_array_equal(wider.weights, motion.weights)
 
 
-def test_a_stop_while_sizing_returns_the_polished_estimate(uniform_case, monkeypatch):
+def _stopped_and_unstopped(case, monkeypatch, prefix, max_blur, **switched_off):
+    """Xu on ``case`` (no wide start) stopped at its first progress record whose message
+    starts with ``prefix``, and the same run with the stage switched off instead
+    (``switched_off``: attributes of ``estimate``): ``(stopped, unstopped)``."""
     from napari_edgecme.core import estimate
 
-    def stop_in_sizing(record):
-        if record.message.startswith("sizing the motion"):
+    def stop(record):
+        if record.message.startswith(prefix):
             raise StopIteration
 
+    # the stage that ends the estimation (the wide start's comparison polishes both of its
+    # candidates instead: below)
     monkeypatch.setattr(estimate, "WIDE_START", False)
+    stopped = estimate_motion(case.blurred, "xu", "translation", max_blur=max_blur,
+                              callback=stop)
+    for name, value in switched_off.items():
+        monkeypatch.setattr(estimate, name, value)
+    unstopped = estimate_motion(case.blurred, "xu", "translation", max_blur=max_blur)
+    return stopped, unstopped
+
+
+def test_a_stop_while_sizing_returns_the_polished_estimate(uniform_case, monkeypatch):
     # a max blur with room for the estimate's stretches
-    stopped = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=12,
-                              callback=stop_in_sizing)
-    monkeypatch.setattr(estimate, "SIZE_STRETCHES", ())
-    before = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=12)
+    stopped, before = _stopped_and_unstopped(uniform_case, monkeypatch, "sizing the motion",
+                                             12, SIZE_STRETCHES=())
     assert "stopped while sizing the motion" in stopped.info.message
     assert not stopped.info.converged and stopped.info.stretch == 1.0
     np.testing.assert_array_equal(stopped.motion.poses, before.motion.poses)
@@ -335,20 +347,9 @@ def test_a_stop_while_sizing_returns_the_polished_estimate(uniform_case, monkeyp
 
 
 def test_a_stop_during_the_polish_returns_the_estimate_before_it(uniform_case, monkeypatch):
-    from napari_edgecme.core import estimate
-
-    def stop_in_polish(record):
-        if record.message.startswith("polish 1/"):
-            raise StopIteration
-
-    # the polish that ends the estimation (the wide start's comparison polishes both of its
-    # candidates instead: below)
-    monkeypatch.setattr(estimate, "WIDE_START", False)
-    stopped = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9,
-                              callback=stop_in_polish)
-    monkeypatch.setattr(estimate, "POLISH_UPDATES", 0)
-    monkeypatch.setattr(estimate, "SIZE_STRETCHES", ())  # a stopped run is not sized
-    before = estimate_motion(uniform_case.blurred, "xu", "translation", max_blur=9)
+    # a stopped run is not sized either
+    stopped, before = _stopped_and_unstopped(uniform_case, monkeypatch, "polish 1/", 9,
+                                             POLISH_UPDATES=0, SIZE_STRETCHES=())
     assert "stopped during the polish" in stopped.info.message
     assert not stopped.info.converged
     np.testing.assert_array_equal(stopped.motion.poses, before.motion.poses)

@@ -931,6 +931,21 @@ POLISH_EDGE_PROFILES = False
 POLISH_DECONVOLUTION: dict = {}
 
 
+def _deconvolution_range(g: np.ndarray):
+    """``g`` as the hyper-Laplacian deconvolution accepts it, and the map of its latents
+    back: ``(unit, back)``.
+
+    A level beyond :data:`~._validation.FLOAT_RANGE` (a contrast-stretched photo with
+    clipped highlights) is mapped onto [0, 1]; ``back`` maps a latent of ``unit`` to
+    ``g``'s range and dtype (only the dtype when ``unit`` is ``g``).
+    """
+    lo, hi = float(g.min()), float(g.max())
+    if (FLOAT_RANGE[0] <= lo and hi <= FLOAT_RANGE[1]) or hi <= lo:
+        return g, lambda latent: latent.astype(g.dtype, copy=False)
+    return ((g - lo) / (hi - lo),
+            lambda latent: (latent * (hi - lo) + lo).astype(g.dtype, copy=False))
+
+
 def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int,
             updates: int = POLISH_UPDATES):
     """``updates`` MDF updates against the hyper-Laplacian latent of ``motion``.
@@ -942,9 +957,8 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int,
     between the grid's points: splatted, each spreads over its neighbours, and the
     update starts from a slightly widened path it can grow into or thin again (from the
     grid-aligned path itself the polish gained less: PSF NCC 0.878 instead of 0.909 on
-    ``lai`` natural_01_gyro3). A level beyond the range deconvolution accepts
-    (:data:`~._validation.FLOAT_RANGE`: a contrast-stretched photo with clipped
-    highlights) is mapped onto [0, 1] for it, and its latent mapped back.
+    ``lai`` natural_01_gyro3). The level is deconvolved in the range deconvolution
+    accepts (:func:`_deconvolution_range`), its latent mapped back.
     """
     from .deconv import iter_deconvolve
 
@@ -955,10 +969,7 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int,
     ep_data = None
     if run.profiles is not None and lambda_ip > 0:
         ep_data = edge_images(level, run.profiles, 1.0, run.gain)
-    g = level.blurred
-    lo, hi = float(g.min()), float(g.max())
-    inside = FLOAT_RANGE[0] <= lo and hi <= FLOAT_RANGE[1]
-    unit = g if inside or hi <= lo else (g - lo) / (hi - lo)
+    unit, back = _deconvolution_range(level.blurred)
     n_scales = len(run.scales)
     latent = None
     for it in range(updates):
@@ -968,7 +979,7 @@ def _polish(run: _CoarseToFine, motion: CameraMotion, step: int, total: int,
                             **POLISH_DECONVOLUTION),
             Progress("estimate", step, total, f"{where}: deconvolving (hyper-Laplacian)",
                      n_scales=n_scales))
-        latent = (latent if unit is g else latent * (hi - lo) + lo).astype(g.dtype, copy=False)
+        latent = back(latent)
         weights, _cost, _n = yield from relay_as(
             iter_mdf_update(level, weights, active, latent, ep_data, run.lambda_w,
                             lambda_ip, run.method, salient=POLISH_SALIENT,
@@ -1064,23 +1075,19 @@ def _size(run: _CoarseToFine, motion: CameraMotion, latent, step: int, total: in
     end = step + 1 + len(SIZE_STRETCHES)  # the steps reserved, whether tried or not
     # the blur extent grows with the stretch: the first stretch past the max blur is
     # followed only by others past it
-    fits = tuple(itertools.takewhile(
-        lambda f: stretched(motion, f).blur_extent() <= level.max_blur * (1 + 1e-9),
-        SIZE_STRETCHES))
+    fits = list(itertools.takewhile(
+        lambda fm: fm[1].blur_extent() <= level.max_blur * (1 + 1e-9),
+        ((f, stretched(motion, f)) for f in SIZE_STRETCHES)))
     if not fits:
         yield Progress("estimate", end, total, "sized the motion: no stretch fits the max "
                        "blur", n_scales=n_scales)
         return motion, latent, end
-    g = level.blurred
-    lo, hi = float(g.min()), float(g.max())
-    inside = FLOAT_RANGE[0] <= lo and hi <= FLOAT_RANGE[1]
-    unit = g if inside or hi <= lo else (g - lo) / (hi - lo)
+    unit, back = _deconvolution_range(level.blurred)
     # one interior for all: that of the largest stretch tried
-    band = interior_band(level.shape, stretched(motion, fits[-1]))
+    band = interior_band(level.shape, fits[-1][1])
     best = None
     criteria = []
-    for factor in (1.0, *fits):
-        candidate = motion if factor == 1.0 else stretched(motion, factor)
+    for factor, candidate in [(1.0, motion), *fits]:
         where = f"sizing the motion: stretch {factor:g}"
         trial = yield from relay_as(
             iter_deconvolve(unit, candidate, "hyperlaplacian", **POLISH_DECONVOLUTION),
@@ -1105,8 +1112,7 @@ def _size(run: _CoarseToFine, motion: CameraMotion, latent, step: int, total: in
     info.stretch = factor
     if factor != 1.0:
         info.message += f"; stretched the motion {factor:g}x (size criterion)"
-    latent = (latent if unit is g else latent * (hi - lo) + lo).astype(g.dtype, copy=False)
-    return motion, latent, end
+    return motion, back(latent), end
 
 
 #: Xu+Ep uses the automatic profiles whose calibrated confidence is at least this
