@@ -267,18 +267,21 @@ def test_lam_is_passed_as_lambda_f_so_our_own_cli_raises_no_deprecation(cd, caps
     import warnings
 
     from napari_edgecme.cli._options import deconvolution_params
+    from napari_edgecme.core.deconv import noise_lambda_f
+    from napari_edgecme.core.io import read_image
 
     args = argparse.Namespace(lam=3000.0, iterations=None, nsr=None)
     assert deconvolution_params(args, "hyperlaplacian") == {"lambda_f": 2.0 / 3000.0}
     with warnings.catch_warnings():
         warnings.simplefilter("error", DeprecationWarning)
+        # the data weight the default sets from this photo's noise, given by hand
+        photo_lam = 2.0 / noise_lambda_f(read_image("blurred.png"))
         status, _, err = run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
-                              "lam.png", "--lam", "1500"], capsys)
+                              "lam.png", "--lam", repr(photo_lam)], capsys)
         assert status == 0, err
         status, _, err = run(["deconvolve", "blurred.png", "--motion", "truth.json", "-o",
                               "default.png"], capsys)
         assert status == 0, err
-    # --lam 1500 is the default data weight (lambda_f = 2 / 1500): the same restoration
     assert Path("lam.png").read_bytes() == Path("default.png").read_bytes()
 
 

@@ -33,11 +33,20 @@ def setup(qtbot, viewer_model, photo_case):
     return SimpleNamespace(viewer=viewer_model, image=image, widget=widget, original=blurred.copy())
 
 
+def test_a_smoothness_set_by_hand_replaces_the_automatic_one(setup):
+    w = setup.widget
+    w.lambda_f.setValue(2e-3)
+    assert w.parameters()["lambda_f"] == pytest.approx(2e-3)
+    w.lambda_f.setValue(w.lambda_f.minimum())  # back to "auto"
+    assert w.parameters()["lambda_f"] is None
+
+
 def test_defaults_are_the_engines(setup):
     w = setup.widget
     assert w.method_combo.value == "hyperlaplacian"
-    assert w.parameters() == {"lambda_f": pytest.approx(DEFAULTS["hyperlaplacian"]["lambda_f"],
-                                                           rel=1e-4),
+    assert DEFAULTS["hyperlaplacian"]["lambda_f"] is None  # from the photo's noise
+    assert w.lambda_f.text() == "auto (from the noise)"
+    assert w.parameters() == {"lambda_f": None,
                               "alpha": pytest.approx(DEFAULTS["hyperlaplacian"]["alpha"]),
                               "solver": DEFAULTS["hyperlaplacian"]["solver"],
                               "color": DEFAULTS["hyperlaplacian"]["color"],

@@ -154,8 +154,9 @@ from .photometry import mix_channels
 from .progress import Progress, StopRequested, drive, relay, stop
 
 __all__ = ["CHROMAS", "COLORS", "DEFAULTS", "HALF_CHROMA_PIXELS", "METHODS", "METHOD_PARAMETERS",
-           "OPPONENT", "SOLVERS", "check_deconvolution_parameters", "color_description",
-           "deconvolve", "double_size", "from_opponent", "half_size", "iter_deconvolve",
+           "MOTION_NOISE", "NOISE_CROP", "OPPONENT", "REFERENCE_LAMBDA_F", "REFERENCE_NOISE",
+           "SOLVERS", "check_deconvolution_parameters", "color_description", "deconvolve",
+           "double_size", "from_opponent", "half_size", "iter_deconvolve", "noise_lambda_f",
            "to_opponent"]
 
 #: Deconvolution methods, by name.
@@ -198,7 +199,7 @@ FOURIER_BORDER_ITERATIONS = {"hyperlaplacian": 8, "wiener": 12}
 
 
 def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
-               lambda_f: float = 2.0 / 1500.0, alpha: float = 2.0 / 3.0,
+               lambda_f: float | None = None, alpha: float = 2.0 / 3.0,
                beta_start: float = 1.0, beta_rate: float = 2.0 * math.sqrt(2.0),
                beta_max: float = 256.0, inner_iterations: int = 1, solver: str = "fourier",
                cg_iterations: int = 10, cg_tol: float = 1e-4,
@@ -223,14 +224,14 @@ def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
         works. A motion for another aspect ratio is refused.
     method : {"hyperlaplacian", "rl", "wiener"}
         See the module notes.
-    lambda_f : float, default 2/1500 (about 1.33e-3)
+    lambda_f : float, optional
         hyperlaplacian: weight of the gradient prior against ``||M T f - g||^2``
         (module notes), for images in [0, 1] -- the role ``lambda_f`` has in the
         estimation's latent update (Eq. 21). ``2 / lambda_f`` is KF's data weight
-        ``lambda``: the reference's 2e3 at small noise is ``lambda_f = 1e-3``; at 1 %
-        noise 2/1500 is best on average over our synthetic sets (2/1000 .. 2/2000
-        within 0.3 dB, 2/3000 1 dB worse). Lower it for cleaner photos, raise it for
-        noisier ones.
+        ``lambda``. By default it is set from the photo's noise
+        (:func:`noise_lambda_f`): 2/1500 (about 1.33e-3) at the 2/255 of the ``lai``
+        photos, down to 0.44x that on a clean capture, up with the noise's variance on
+        noisier photos. Give a value to fix it: lower for a sharper, noisier result.
     alpha : float, default 2/3
         hyperlaplacian: prior exponent, 1/2 or 2/3 (exact w-steps). 2/3 is 0.2 dB
         better on average at 1 % noise; 1/2 favours piecewise-flat scenes.
@@ -325,7 +326,7 @@ def deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
 
 
 def iter_deconvolve(image, motion: CameraMotion, method: str = "hyperlaplacian", *,
-                    lambda_f: float = 2.0 / 1500.0, alpha: float = 2.0 / 3.0,
+                    lambda_f: float | None = None, alpha: float = 2.0 / 3.0,
                     beta_start: float = 1.0, beta_rate: float = 2.0 * math.sqrt(2.0),
                     beta_max: float = 256.0, inner_iterations: int = 1,
                     solver: str = "fourier", cg_iterations: int = 10, cg_tol: float = 1e-4,
@@ -371,6 +372,9 @@ iterations, nsr, block_size, stride, preview, lam
     img = as_float_image(image, "image", allow_rgb=True)
     method = check_choice(method, "method", METHODS)
     opts = check_deconvolution_parameters(method, given)
+    if method == "hyperlaplacian" and opts["lambda_f"] is None:
+        opts["lambda_f"] = noise_lambda_f(img)
+        opts["lam"] = 2.0 / opts["lambda_f"]
     motion = _fit_motion(motion, img.shape)
     if img.ndim == 3 and method == "hyperlaplacian" and opts["color"] == "opponent":
         return (yield from _run_opponent(img, motion, method, opts))
@@ -399,7 +403,56 @@ _SIGNATURE_DEFAULTS = {name: inspect.signature(iter_deconvolve).parameters[name]
 #: the old name.
 DEFAULTS = {method: {name: _SIGNATURE_DEFAULTS[name] for name in names}
             for method, names in METHOD_PARAMETERS.items()}
-DEFAULTS["hyperlaplacian"]["lam"] = 2.0 / DEFAULTS["hyperlaplacian"]["lambda_f"]
+DEFAULTS["hyperlaplacian"]["lam"] = None  # as lambda_f: from the photo's noise
+
+
+#: The hyper-Laplacian's prior weight at :data:`REFERENCE_NOISE`: 2/1500, the weight
+#: best on average over the synthetic sets at 1 % noise (``benchmarks/bench_deconv.py``;
+#: 2/1000 .. 2/2000 within 0.3 dB) and for the estimated motions of the ``lai`` photos.
+REFERENCE_LAMBDA_F = 2.0 / 1500.0
+#: The noise of the ``lai`` photos (:func:`~.photometry.estimate_noise`: 1.6-2.4 /255,
+#: median 2/255), where :data:`REFERENCE_LAMBDA_F` is the best weight.
+REFERENCE_NOISE = 2.0 / 255.0
+#: The error of an estimated motion, as white noise it adds to the photo's (on a
+#: [0, 1] scale): what keeps the best weight from falling with the photo's noise
+#: towards zero. A MAP weight grows with the noise variance; with an estimated motion
+#: the residual also holds the motion's error, so the weight goes as
+#: ``noise**2 + MOTION_NOISE**2``. Measured on the Xu+Ep estimates of the two
+#: real-photo sets (``benchmarks/results/noise-weight.md``): on ``levin``'s captures
+#: (noise 0.2-0.3 /255) the best weight was 0.4-0.5x the reference (+0.33 dB), on
+#: ``lai`` (2/255) the reference itself (0.7-1.5x within 0.1 dB); 1.77/255 puts 0.44x at
+#: zero noise and 1x at the reference.
+MOTION_NOISE = 1.77 / 255.0
+#: Largest side of the central crop :func:`noise_lambda_f` measures the noise on.
+NOISE_CROP = 1024
+
+
+def noise_lambda_f(image) -> float:
+    """The hyper-Laplacian's prior weight for a photo: its default ``lambda_f``.
+
+    ``REFERENCE_LAMBDA_F * (s**2 + MOTION_NOISE**2) / (REFERENCE_NOISE**2 +
+    MOTION_NOISE**2)``, where ``s`` is the photo's noise
+    (:func:`~.photometry.estimate_noise` on its luminance, on a central crop of at most
+    :data:`NOISE_CROP` px a side).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        The blurred photo, floating point on a [0, 1] scale (as deconvolved).
+
+    Returns
+    -------
+    float
+        From 0.44x :data:`REFERENCE_LAMBDA_F` for a noiseless photo, 1x at
+        :data:`REFERENCE_NOISE`, 2.7x at twice that.
+    """
+    from .photometry import estimate_noise
+
+    rows, cols = image.shape[:2]
+    r0, c0 = max(0, (rows - NOISE_CROP) // 2), max(0, (cols - NOISE_CROP) // 2)
+    noise = estimate_noise(image[r0:r0 + NOISE_CROP, c0:c0 + NOISE_CROP])
+    return REFERENCE_LAMBDA_F * ((noise ** 2 + MOTION_NOISE ** 2)
+                                 / (REFERENCE_NOISE ** 2 + MOTION_NOISE ** 2))
 
 
 # --------------------------------------------------------------------------------------
@@ -427,7 +480,9 @@ def check_deconvolution_parameters(method: str, params: dict) -> dict:
     dict
         Every parameter of ``method`` and the common ones, defaults filled in, values
         checked and normalised, aliases resolved; plus ``"lam"`` (hyperlaplacian: the
-        data weight ``2 / lambda_f`` the solvers use).
+        data weight ``2 / lambda_f`` the solvers use). A ``lambda_f`` left at None (its
+        default: from the photo) stays None, and so does ``"lam"``: the photo decides
+        them (:func:`noise_lambda_f`).
 
     Raises
     ------
@@ -456,6 +511,8 @@ def check_deconvolution_parameters(method: str, params: dict) -> dict:
                 raise ValueError("lam is the deprecated form of lambda_f: pass one of them")
             opts["lam"] = check_positive(params["lam"], "lam")
             opts["lambda_f"] = 2.0 / opts["lam"]
+        elif opts["lambda_f"] is None:  # from the photo (noise_lambda_f), when it is known
+            opts["lam"] = None
         else:
             opts["lambda_f"] = check_positive(opts["lambda_f"], "lambda_f")
             opts["lam"] = 2.0 / opts["lambda_f"]

@@ -66,6 +66,7 @@ from ._validation import (
     check_positive,
 )
 from .camera import MODELS, Intrinsics
+from .deconv import REFERENCE_LAMBDA_F
 from .deconv_prior import grad
 from .latent import iter_l0_latent
 from .mdf_update import edge_images, iter_mdf_update
@@ -923,12 +924,15 @@ POLISH_DILATION = 2
 #: manmade +0.02, natural -0.03, people +0.10, saturated -0.07, text -0.02), with 56 of
 #: 60 cases within 0.2 dB of Xu instead of 53 (``benchmarks/results/ep-polish-off.md``).
 POLISH_EDGE_PROFILES = False
-#: Keywords of the polish's hyper-Laplacian deconvolution (empty: its defaults). A
-#: cheaper latent -- splitting from beta = 4 (5 steps) and 4 border CG iterations, 1.8x
-#: faster -- left `lai` unchanged but collapsed the estimate of a small photo with
-#: clipped highlights (``tests/core/test_no_blur.py``; its low-beta steps matter there),
-#: so it is not used (``benchmarks/results/polish.md``).
-POLISH_DECONVOLUTION: dict = {}
+#: Keywords of the polish's hyper-Laplacian deconvolution (the sizing's too). Its prior
+#: weight is fixed at the reference (:data:`~.deconv.REFERENCE_LAMBDA_F`), not set from
+#: the photo's noise as the final restoration's is: the polish, the comparisons of the
+#: candidates and the sizing were measured with it. A cheaper latent -- splitting from
+#: beta = 4 (5 steps) and 4 border CG iterations, 1.8x faster -- left `lai` unchanged
+#: but collapsed the estimate of a small photo with clipped highlights
+#: (``tests/core/test_no_blur.py``; its low-beta steps matter there), so it is not used
+#: (``benchmarks/results/polish.md``).
+POLISH_DECONVOLUTION: dict = {"lambda_f": REFERENCE_LAMBDA_F}
 
 
 def _deconvolution_range(g: np.ndarray):
