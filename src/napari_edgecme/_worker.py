@@ -58,6 +58,7 @@ def _job_baseline(job: dict) -> dict:
 
 
 def _job_estimate(job: dict) -> dict:
+    from .core.deblur import restoring_params
     from .core.deconv import deconvolve
     from .core.estimate import estimate_motion
 
@@ -73,7 +74,8 @@ def _job_estimate(job: dict) -> dict:
         est.motion.save(job["motion"])
     if job.get("restored"):
         t0, c0 = time.perf_counter(), time.process_time()
-        restored = deconvolve(image, est.motion)
+        restored = deconvolve(image, est.motion,
+                              **restoring_params(image, est.info.method, "hyperlaplacian"))
         out["deconvolve_s"] = time.perf_counter() - t0
         out["deconvolve_cpu_s"] = time.process_time() - c0
         np.save(job["restored"], restored)

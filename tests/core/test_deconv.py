@@ -692,3 +692,23 @@ def test_on_a_clean_photo_the_default_weight_restores_more_than_the_reference(se
     reference = aligned_psnr(deconvolve(case.blurred, case.motion,
                                         lambda_f=deconv.REFERENCE_LAMBDA_F), case.sharp)
     assert default > reference + 0.3
+
+
+def test_an_epalone_motion_is_restored_at_no_less_than_the_reference_weight():
+    from napari_edgecme.core.deblur import restoring_params
+
+    rng = np.random.default_rng(2)
+    clean = np.full((120, 160), 0.5, np.float32)
+    noisy = clean + rng.normal(0, 2 * deconv.REFERENCE_NOISE, clean.shape).astype(np.float32)
+    reference = deconv.REFERENCE_LAMBDA_F
+    # Xu, Xu+Ep: the weight from the noise (None: deconvolve sets it), low on a clean photo
+    for method in ("xu", "xu+ep"):
+        assert restoring_params(clean, method, "hyperlaplacian") == {}
+    # EpAlone: its rougher motion rings at the clean photo's low weight
+    assert restoring_params(clean, "ep", "hyperlaplacian") == {"lambda_f": reference}
+    raised = restoring_params(noisy, "ep", "hyperlaplacian")["lambda_f"]
+    assert raised == pytest.approx(deconv.noise_lambda_f(noisy)) and raised > 2 * reference
+    # a weight given is kept; other methods have none
+    assert restoring_params(clean, "ep", "hyperlaplacian", {"lambda_f": 1e-4}) == {
+        "lambda_f": 1e-4}
+    assert restoring_params(clean, "ep", "rl", {"iterations": 5}) == {"iterations": 5}

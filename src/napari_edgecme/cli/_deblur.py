@@ -14,7 +14,7 @@ from pathlib import Path
 from ..core import deconv as _deconv
 from ..core import estimate as _estimate
 from ..core import io as _io
-from ..core.deblur import record_gamma
+from ..core.deblur import record_gamma, restoring_params
 from ..core.motion import CameraMotion
 from ..core.photometry import Gamma, decide_gamma, parse_gamma
 from ._console import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, CLIError, _Console, _UsageError
@@ -141,6 +141,7 @@ def deblur_image(args, console: _Console, image, path: Path, params: dict):
     if result.info.no_blur:  # nothing to undo: the photo comes back as it was
         restored = image
     else:
+        params = restoring_params(work, result.info.method, args.deconvolution, params)
         restored = console.run(_deconv.iter_deconvolve(work, result.motion,
                                                        args.deconvolution, **params))
         if not curve.is_linear:

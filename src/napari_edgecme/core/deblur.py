@@ -14,7 +14,7 @@ from ._validation import as_float_image, check_choice
 from .estimate import estimate_motion
 from .photometry import decide_gamma, parse_gamma
 
-__all__ = ["deblur", "record_gamma"]
+__all__ = ["deblur", "record_gamma", "restoring_params"]
 
 
 def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: float | None = None,
@@ -75,10 +75,45 @@ def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: floa
     if estimate.info.no_blur:  # nothing to undo: the photo comes back unchanged
         return as_float_image(image, allow_rgb=True), estimate
     restored = deconvolve(work, estimate.motion, deconvolution, callback=callback,
-                          **(deconv_params or {}))
+                          **restoring_params(work, estimate.info.method, deconvolution,
+                                             deconv_params))
     if not curve.is_linear:
         restored = curve.encode(restored)
     return restored, estimate
+
+
+def restoring_params(image, method: str, deconvolution: str, deconv_params=None) -> dict:
+    """The deconvolution's parameters for restoring ``image`` with an estimate of ``method``.
+
+    ``deconv_params`` as given, except that an EpAlone motion is restored with the
+    hyper-Laplacian's prior weight never below the reference
+    (:data:`~.deconv.REFERENCE_LAMBDA_F`) when no weight is given: the weight set from a
+    clean photo's noise (:func:`~.deconv.noise_lambda_f`, down to 0.44x) assumes a
+    motion as close as Xu's and Xu+Ep's, and EpAlone's, from the edge profiles alone, is
+    rougher -- on ``levin``'s clean captures it rang more at that weight (26.82 -> 26.10
+    dB, 1 -> 5 captures below the blurred input), where Xu+Ep gained 0.33 dB
+    (``benchmarks/results/noise-weight.md``).
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W) or (H, W, 3)
+        The photo to be deconvolved (linear light, [0, 1]).
+    method : {"ep", "xu", "xu+ep"}
+        The method that estimated the motion (``estimate.info.method``).
+    deconvolution : {"hyperlaplacian", "rl", "wiener"}
+    deconv_params : dict, optional
+
+    Returns
+    -------
+    dict
+    """
+    from .deconv import REFERENCE_LAMBDA_F, noise_lambda_f
+
+    params = dict(deconv_params or {})
+    if (method == "ep" and deconvolution == "hyperlaplacian"
+            and params.get("lambda_f") is None and "lam" not in params):
+        params["lambda_f"] = max(noise_lambda_f(image), REFERENCE_LAMBDA_F)
+    return params
 
 
 def record_gamma(info, curve, reason: str) -> None:
