@@ -15,7 +15,7 @@ from test_deconv import run as records_of
 from napari_edgecme import Intrinsics
 from napari_edgecme.core import deconv, io
 from napari_edgecme.core import deconv_solvers as solvers
-from napari_edgecme.core.deconv import deconvolve, iter_deconvolve
+from napari_edgecme.core.deconv import deconvolve, iter_deconvolve, noise_lambda_f
 from napari_edgecme.core.deconv_prior import shrink_hyperlaplacian, shrink_threshold
 from napari_edgecme.core.deconv_solvers import LatentDomain, PatchFourier, hyperlaplacian_steps
 from napari_edgecme.core.edges import extract_edge_profiles, iter_extract_edge_profiles
@@ -227,9 +227,10 @@ def test_rgb_is_assembled_in_place_as_three_gray_deconvolutions(rgb_case):
     rgb = deconvolve(blurred, motion, block_size=96, color="rgb")
     assert rgb.flags["C_CONTIGUOUS"] and rgb.dtype == np.float32
     assert rgb.min() >= 0 and rgb.max() <= 1
+    weight = noise_lambda_f(blurred)  # one prior weight for the photo, from its noise
     for c in range(3):
         np.testing.assert_array_equal(rgb[..., c], deconvolve(blurred[..., c], motion,
-                                                              block_size=96))
+                                                              block_size=96, lambda_f=weight))
 
 
 def test_tile_spectra_do_not_depend_on_the_chunk_size(rgb_case, monkeypatch):
