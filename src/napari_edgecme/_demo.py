@@ -32,6 +32,7 @@ import numpy as np
 from ._report import METHOD_NAMES, check_out_folder
 from .core import io as _io
 from .core._validation import first_line
+from .core.deblur import restoring_params
 from .core.deconv import iter_deconvolve
 from .core.edges import EdgeProfiles, extract_edge_profiles
 from .core.estimate import iter_estimate_motion
@@ -160,7 +161,8 @@ def run_demo(out="edgecme-demo", *, size: int | None = None, seed: int = 0,
                                                profiles=profiles, n_iter=n_iter, rng=seed))
                 row["estimate_s"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                image = run(iter_deconvolve(case.blurred, est.motion))
+                image = run(iter_deconvolve(case.blurred, est.motion, **restoring_params(
+                    case.blurred, est.info.method, "hyperlaplacian")))
                 row["deconvolve_s"] = time.perf_counter() - t0
         except Exception as err:  # an estimator failing is a result of the demo
             if debug:
