@@ -71,7 +71,7 @@ from .deconv_prior import grad
 from .latent import iter_l0_latent
 from .mdf_update import edge_images, iter_mdf_update
 from .motion import CameraMotion
-from .photometry import LUMA, mix_channels
+from .photometry import to_luminance
 from .profile_fit import (
     EP_EDGE_SPREAD,
     EP_MAX_MISFIT,
@@ -282,12 +282,6 @@ def default_max_blur(shape) -> float:
     return float(max(15, round(0.04 * max(shape[:2]))))
 
 
-def _luminance(img: np.ndarray) -> np.ndarray:
-    if img.ndim == 2:
-        return img
-    return mix_channels(img, LUMA)
-
-
 #: Xu+Ep first runs EpAlone on its profiles and drops the edge-profile term (runs as
 #: Xu, with a warning) when they leave more than :data:`XU_EP_GATE_MISFIT` unexplained.
 XU_EP_GATE = True
@@ -357,7 +351,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
     method = check_choice(method, "method", METHODS)
     model = check_choice(model, "model", MODELS)
     img = as_float_image(image, allow_rgb=True, min_size=8)
-    gray = _luminance(img)
+    gray = to_luminance(img)
     shape = gray.shape
     if max_blur is None and default_max_blur(shape) > min(shape) / 2:
         max_blur = default_max_blur(shape)  # too small to measure in: refused below
