@@ -299,3 +299,32 @@ def test_the_motion_estimated_by_xu_ep_sharpens_the_image(qtbot, viewer_model, e
     gain = (aligned_psnr(restored, edge_case.sharp)
             - aligned_psnr(edge_case.blurred, edge_case.sharp))
     assert gain > 3.0
+
+
+@pytest.mark.parametrize("estimated_by", [None, "xu+ep", "ep"])
+def test_a_motion_is_restored_as_deblur_restores_an_estimate_of_its_method(
+        setup, wait_for_run, monkeypatch, estimated_by):
+    from napari_edgecme._widgets import _gamma
+    from napari_edgecme.core import deconv
+    from napari_edgecme.core.deblur import restoring_params
+
+    s = setup
+    if estimated_by is not None:  # as the camera-motion widget records its estimate
+        s.image.metadata = {**s.image.metadata, "edgecme_estimate": {"method": estimated_by}}
+    seen = {}
+
+    def spy(image, motion, method, **params):
+        seen.update(params)
+        return (yield from deconv.iter_deconvolve(image, motion, method, **params))
+
+    monkeypatch.setattr(_gamma, "iter_deconvolve", spy)
+    s.widget.run_button.click()
+    wait_for_run(s.widget)
+    assert s.widget.runner.outcome == "done"
+    expected = restoring_params(s.original, estimated_by or "xu", "hyperlaplacian",
+                                {"lambda_f": None})
+    assert seen["lambda_f"] == expected["lambda_f"]
+    if estimated_by == "ep":  # EpAlone's floor: never below the reference weight
+        assert seen["lambda_f"] >= deconv.REFERENCE_LAMBDA_F
+    else:  # the weight from the photo's noise, set by the engine
+        assert seen["lambda_f"] is None

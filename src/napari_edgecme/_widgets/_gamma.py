@@ -30,7 +30,7 @@ from qtpy.QtCore import Signal
 from qtpy.QtWidgets import QComboBox, QHBoxLayout, QLabel, QLineEdit, QVBoxLayout, QWidget
 
 from ..core._validation import first_line
-from ..core.deblur import record_gamma
+from ..core.deblur import record_gamma, restoring_params
 from ..core.deconv import iter_deconvolve
 from ..core.estimate import MotionEstimate, iter_estimate_motion
 from ..core.photometry import Gamma, decide_gamma, parse_gamma
@@ -248,7 +248,8 @@ def estimate_in_linear_light(data: np.ndarray, curve: Gamma, reason: str, *args,
     return Estimated(estimate, latent)
 
 
-def deconvolve_in_linear_light(data: np.ndarray, curve: Gamma, *args, **kwargs):
+def deconvolve_in_linear_light(data: np.ndarray, curve: Gamma, motion, method: str, *,
+                               estimated_by: str | None = None, **params):
     """:func:`~napari_edgecme.core.deconv.iter_deconvolve` on ``data`` in linear light.
 
     A generator, for the worker thread: it decodes ``data`` through ``curve``, yields the
@@ -260,10 +261,15 @@ def deconvolve_in_linear_light(data: np.ndarray, curve: Gamma, *args, **kwargs):
     data : ndarray of shape (M, N) or (M, N, 3)
         The image's values as stored (a snapshot).
     curve : Gamma
-    *args, **kwargs
+    motion, method, **params
         As :func:`~napari_edgecme.core.deconv.iter_deconvolve`, after the image.
+    estimated_by : {"ep", "xu", "xu+ep"}, optional
+        The method that estimated ``motion``, when known: its restoration's parameters
+        as :func:`~napari_edgecme.core.deblur.restoring_params` sets them (as ``deblur``
+        restores it).
     """
-    if curve.is_linear:
-        return (yield from iter_deconvolve(data, *args, **kwargs))
-    restored = yield from iter_deconvolve(curve.decode(data), *args, **kwargs)
-    return curve.encode(restored)
+    linear = data if curve.is_linear else curve.decode(data)
+    if estimated_by is not None:
+        params = restoring_params(linear, estimated_by, method, params)
+    restored = yield from iter_deconvolve(linear, motion, method, **params)
+    return restored if curve.is_linear else curve.encode(restored)

@@ -406,11 +406,15 @@ class DeconvolutionWidget(QWidget):
 
     def _motion_gamma(self) -> str | None:
         """The curve the chosen motion was estimated with, when its layer says."""
+        return self._motion_estimate("gamma")
+
+    def _motion_estimate(self, key: str):
+        """An entry of the chosen motion layer's estimate summary (None when unknown)."""
         source = self.motion_combo.value
         if not isinstance(source, Layer):
             return None
         summary = source.metadata.get(ESTIMATE_KEY)
-        return summary.get("gamma") if isinstance(summary, dict) else None
+        return summary.get(key) if isinstance(summary, dict) else None
 
     def _gamma_name(self) -> str | None:
         try:
@@ -474,7 +478,12 @@ class DeconvolutionWidget(QWidget):
         if fit.guess:
             show_warning(f"Deconvolution: {fit.note}")
         method, params = self.method_combo.value, self.parameters()
-        gen = deconvolve_in_linear_light(data, curve, fit.motion, method, **params)
+        # restored as deblur restores an estimate of its method (EpAlone: the weight floor)
+        estimated_by = self._motion_estimate("method")
+        if estimated_by not in ("ep", "xu", "xu+ep"):
+            estimated_by = None
+        gen = deconvolve_in_linear_light(data, curve, fit.motion, method,
+                                         estimated_by=estimated_by, **params)
         settings = {"method": method, **params, "gamma": curve.name, "gamma_reason": reason}
         self.runner.start(gen, on_result=partial(self._show_result, image, fit.motion,
                                                  settings))
