@@ -50,6 +50,7 @@ from qtpy.QtWidgets import (
 
 from ..core._validation import first_line
 from ..core.deconv import DEFAULTS, HALF_CHROMA_PIXELS
+from ..core.estimate import METHODS as ESTIMATION_METHODS
 from ..core.motion import CameraMotion
 from ._dock import dock_layout
 from ._gamma import GIVEN, GammaControl, deconvolve_in_linear_light, gamma_note
@@ -480,7 +481,7 @@ class DeconvolutionWidget(QWidget):
         method, params = self.method_combo.value, self.parameters()
         # restored as deblur restores an estimate of its method (EpAlone: the weight floor)
         estimated_by = self._motion_estimate("method")
-        if estimated_by not in ("ep", "xu", "xu+ep"):
+        if estimated_by not in ESTIMATION_METHODS:
             estimated_by = None
         gen = deconvolve_in_linear_light(data, curve, fit.motion, method,
                                          estimated_by=estimated_by, **params)

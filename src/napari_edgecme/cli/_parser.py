@@ -110,20 +110,16 @@ def _add_estimation(parser, profiles: bool = True) -> None:
                           "instead of refining it at full resolution (xu, xu+ep)")
 
 
-#: The data weight on a noiseless photo against the reference (``--lam`` help).
-_CLEAN_PHOTO_RATIO = 1 + (_deconv.REFERENCE_NOISE / _deconv.MOTION_NOISE) ** 2
-
-
 def _add_deconvolution(parser) -> None:
     d = _deconv.DEFAULTS
     group = parser.add_argument_group("deconvolution parameters")
     group.add_argument("--lam", type=_number(), metavar="L",
                        help=f"hyperlaplacian: data weight, 2 / lambda_f of the engine "
                             f"(default: from the photo's noise, "
-                            f"{2 / _deconv.REFERENCE_LAMBDA_F:g} at 2/255 and up to "
-                            f"{2 / _deconv.REFERENCE_LAMBDA_F * _CLEAN_PHOTO_RATIO:.0f} on a "
-                            "clean "
-                            "photo; higher for a sharper, noisier result)")
+                            f"{2 / _deconv.REFERENCE_LAMBDA_F:g} at "
+                            f"{_deconv.REFERENCE_NOISE * 255:g}/255 and up to "
+                            f"{2 / _deconv.lambda_f_for_noise(0.0):.0f} on a clean photo; "
+                            "higher for a sharper, noisier result)")
     group.add_argument("--iterations", type=_number(int), metavar="N",
                        help=f"rl: Richardson-Lucy iterations (default {d['rl']['iterations']})")
     group.add_argument("--nsr", type=_number(), metavar="R",

@@ -156,8 +156,8 @@ from .progress import Progress, StopRequested, drive, relay, stop
 __all__ = ["CHROMAS", "COLORS", "DEFAULTS", "HALF_CHROMA_PIXELS", "METHODS", "METHOD_PARAMETERS",
            "MOTION_NOISE", "NOISE_CROP", "OPPONENT", "REFERENCE_LAMBDA_F", "REFERENCE_NOISE",
            "SOLVERS", "check_deconvolution_parameters", "color_description", "deconvolve",
-           "double_size", "from_opponent", "half_size", "iter_deconvolve", "noise_lambda_f",
-           "to_opponent"]
+           "double_size", "from_opponent", "half_size", "iter_deconvolve", "lambda_f_for_noise",
+           "noise_lambda_f", "to_opponent"]
 
 #: Deconvolution methods, by name.
 METHODS = ("hyperlaplacian", "rl", "wiener")
@@ -450,7 +450,15 @@ def noise_lambda_f(image) -> float:
 
     rows, cols = image.shape[:2]
     r0, c0 = max(0, (rows - NOISE_CROP) // 2), max(0, (cols - NOISE_CROP) // 2)
-    noise = estimate_noise(image[r0:r0 + NOISE_CROP, c0:c0 + NOISE_CROP])
+    return lambda_f_for_noise(estimate_noise(image[r0:r0 + NOISE_CROP, c0:c0 + NOISE_CROP]))
+
+
+def lambda_f_for_noise(noise: float) -> float:
+    """The prior weight :func:`noise_lambda_f` gives a photo of this noise (on [0, 1]).
+
+    ``REFERENCE_LAMBDA_F * (noise**2 + MOTION_NOISE**2) / (REFERENCE_NOISE**2 +
+    MOTION_NOISE**2)``.
+    """
     return REFERENCE_LAMBDA_F * ((noise ** 2 + MOTION_NOISE ** 2)
                                  / (REFERENCE_NOISE ** 2 + MOTION_NOISE ** 2))
 

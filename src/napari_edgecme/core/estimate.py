@@ -598,7 +598,7 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
 
     # -- size: the polished path stretched about its centroid while the latent improves --
     if SIZE_STRETCHES and method != "ep" and not stopped and not info.no_blur:
-        total += 1 + len(SIZE_STRETCHES)
+        total += _size_steps()
         try:
             motion, latent, step = yield from _size(run, motion, latent, step, total, info)
         except StopRequested:
@@ -1047,6 +1047,11 @@ def size_criterion(latent: np.ndarray, blurred: np.ndarray, motion: CameraMotion
     return gradient_sparsity(latent, band) + SIZE_RESIDUAL_WEIGHT * math.log(mse)
 
 
+def _size_steps() -> int:
+    """Progress steps :func:`_size` takes: the motion as it is, then each stretch."""
+    return 1 + len(SIZE_STRETCHES)
+
+
 def stretched(motion: CameraMotion, factor: float) -> CameraMotion:
     """``motion`` with every pose moved ``factor`` times as far from the centroid pose."""
     centre = motion.centroid_pose()
@@ -1070,7 +1075,7 @@ def _size(run: _CoarseToFine, motion: CameraMotion, latent, step: int, total: in
 
     level = run.finest
     n_scales = len(run.scales)
-    end = step + 1 + len(SIZE_STRETCHES)  # the steps reserved, whether tried or not
+    end = step + _size_steps()  # the steps reserved, whether tried or not
     # the blur extent grows with the stretch: the first stretch past the max blur is
     # followed only by others past it
     fits = list(itertools.takewhile(
