@@ -712,3 +712,19 @@ def test_an_epalone_motion_is_restored_at_no_less_than_the_reference_weight():
     assert restoring_params(clean, "ep", "hyperlaplacian", {"lambda_f": 1e-4}) == {
         "lambda_f": 1e-4}
     assert restoring_params(clean, "ep", "rl", {"iterations": 5}) == {"iterations": 5}
+
+
+def test_the_weight_helpers_refuse_bad_input_with_one_line():
+    from napari_edgecme.core.deblur import restoring_params
+
+    with pytest.raises(ValueError, match=r"image must have shape \(rows, cols\)"):
+        deconv.noise_lambda_f(np.zeros(5))
+    with pytest.raises(ValueError, match="image contains 64 non-finite values"):
+        deconv.noise_lambda_f(np.full((8, 8), np.nan))
+    with pytest.raises(ValueError, match="noise must be"):
+        deconv.lambda_f_for_noise(-0.01)
+    clean = np.full((16, 16), 0.5, np.float32)
+    with pytest.raises(ValueError, match="method must be one of"):
+        restoring_params(clean, "pan", "hyperlaplacian")
+    with pytest.raises(ValueError, match="deconvolution must be one of"):
+        restoring_params(clean, "ep", "lucy")

@@ -107,8 +107,12 @@ def restoring_params(image, method: str, deconvolution: str, deconv_params=None)
     -------
     dict
     """
+    from .deconv import METHODS as DECONV_METHODS
     from .deconv import REFERENCE_LAMBDA_F, noise_lambda_f
+    from .estimate import METHODS
 
+    method = check_choice(method, "method", METHODS)
+    deconvolution = check_choice(deconvolution, "deconvolution", DECONV_METHODS)
     params = dict(deconv_params or {})
     if (method == "ep" and deconvolution == "hyperlaplacian"
             and params.get("lambda_f") is None and "lam" not in params):

@@ -448,9 +448,13 @@ def noise_lambda_f(image) -> float:
     """
     from .photometry import estimate_noise
 
-    rows, cols = image.shape[:2]
+    arr = np.asarray(image)
+    if arr.ndim not in (2, 3):  # the engine's one message for a bad shape
+        as_float_image(arr, "image", allow_rgb=True)
+    rows, cols = arr.shape[:2]
     r0, c0 = max(0, (rows - NOISE_CROP) // 2), max(0, (cols - NOISE_CROP) // 2)
-    return lambda_f_for_noise(estimate_noise(image[r0:r0 + NOISE_CROP, c0:c0 + NOISE_CROP]))
+    # estimate_noise validates the crop (dtype, NaN, range) as every input is
+    return lambda_f_for_noise(estimate_noise(arr[r0:r0 + NOISE_CROP, c0:c0 + NOISE_CROP]))
 
 
 def lambda_f_for_noise(noise: float) -> float:
@@ -459,6 +463,7 @@ def lambda_f_for_noise(noise: float) -> float:
     ``REFERENCE_LAMBDA_F * (noise**2 + MOTION_NOISE**2) / (REFERENCE_NOISE**2 +
     MOTION_NOISE**2)``.
     """
+    noise = check_positive(noise, "noise", allow_zero=True)
     return REFERENCE_LAMBDA_F * ((noise ** 2 + MOTION_NOISE ** 2)
                                  / (REFERENCE_NOISE ** 2 + MOTION_NOISE ** 2))
 
