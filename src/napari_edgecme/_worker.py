@@ -71,7 +71,7 @@ def _job_estimate(job: dict) -> dict:
            "message": est.info.message, "converged": est.info.converged,
            "method_run": est.info.method, "no_blur": est.info.no_blur}
     if job.get("motion"):
-        est.motion.save(job["motion"])
+        est.motion.save(job["motion"], estimated_by=est.info.method)
     if job.get("restored"):
         t0, c0 = time.perf_counter(), time.process_time()
         restored = deconvolve(image, est.motion,

@@ -132,6 +132,35 @@ def test_motion_file_round_trips(tmp_path, cam, model):
     assert not list(tmp_path.glob(".*tmp*"))
 
 
+@pytest.mark.parametrize("method", ["ep", "xu", "xu+ep"])
+def test_a_motion_file_names_the_estimator_that_made_it(tmp_path, cam, method):
+    """``estimated_by`` is written when given and read back beside the motion; a file
+    without it (a ground truth, a file of an older version) names none, and the motion
+    of either reads the same."""
+    m = CameraMotion("translation", cam, [[0, 0], [1, 0]], [1, 1])
+    named, plain = tmp_path / "named.json", tmp_path / "plain.json"
+    m.save(named, estimated_by=method)
+    m.save(plain)
+    assert json.loads(named.read_text())["estimated_by"] == method
+    assert "estimated_by" not in json.loads(plain.read_text())
+    assert CameraMotion.load_estimate(named) == (m, method)
+    assert CameraMotion.load_estimate(plain) == (m, None)
+    assert CameraMotion.load(named) == m
+    assert CameraMotion.from_dict(m.to_dict(estimated_by=method)) == m
+
+
+def test_an_unknown_estimator_is_refused_in_one_line(tmp_path, cam):
+    m = CameraMotion("translation", cam, [[0, 0], [1, 0]], [1, 1])
+    with pytest.raises(ValueError, match="'estimated_by' must be one of ep, xu, xu\\+ep"):
+        m.save(tmp_path / "m.json", estimated_by="wiener")
+    assert not (tmp_path / "m.json").exists()
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps({**GOOD, "estimated_by": 3}))
+    with pytest.raises(ValueError, match="motion file's 'estimated_by' must be one of") as info:
+        CameraMotion.load_estimate(path)
+    assert "\n" not in str(info.value) and str(path) in str(info.value)
+
+
 def test_only_nonzero_weights_are_stored(tmp_path, cam):
     m = CameraMotion("translation", cam, [[0, 0], [1, 0]], [1, 0])
     m.save(tmp_path / "m.json")

@@ -124,6 +124,36 @@ def test_an_rgb_image_with_a_motion_from_a_json_file(qtbot, viewer_model, photo_
     assert any("loaded truth.json" in text for text in notifications.texts("info"))
 
 
+@pytest.mark.parametrize("estimated_by", [None, "ep"])
+def test_a_motion_file_is_restored_as_deblur_restores_an_estimate_of_its_method(
+        setup, tmp_path, wait_for_run, monkeypatch, estimated_by):
+    """A motion file naming EpAlone as its estimator (``estimated_by``) gets EpAlone's
+    weight floor, as its layer would; one naming none gets the noise's weight."""
+    from napari_edgecme._widgets import _gamma
+    from napari_edgecme.core import deconv
+    from napari_edgecme.core.deblur import restoring_params
+
+    s = setup
+    path = tmp_path / "motion.json"
+    s.widget.fitted_motion().motion.save(path, estimated_by=estimated_by)
+    s.widget.load_motion(path)
+    seen = {}
+
+    def spy(image, motion, method, **params):
+        seen.update(params)
+        return (yield from deconv.iter_deconvolve(image, motion, method, **params))
+
+    monkeypatch.setattr(_gamma, "iter_deconvolve", spy)
+    s.widget.run_button.click()
+    wait_for_run(s.widget)
+    assert s.widget.runner.outcome == "done"
+    if estimated_by == "ep":
+        expected = restoring_params(s.original, "ep", "hyperlaplacian", {"lambda_f": None})
+        assert seen["lambda_f"] == expected["lambda_f"] >= deconv.REFERENCE_LAMBDA_F
+    else:
+        assert seen["lambda_f"] is None
+
+
 def test_a_bad_motion_file_is_refused_with_a_notification(setup, tmp_path, notifications):
     path = tmp_path / "bad.json"
     path.write_text('{"format": "something else"}')

@@ -465,7 +465,7 @@ class CameraMotionWidget(QWidget):
                 return None
         path = Path(path)
         try:
-            self.last_motion.save(path)
+            self.last_motion.save(path, estimated_by=self.last_estimate.info.method)
         except OSError as err:
             show_error(f"Camera motion: cannot save {path}: {first_line(err)}")
             return None

@@ -210,7 +210,9 @@ class DeconvolutionWidget(QWidget):
     def __init__(self, viewer: napari.viewer.Viewer, parent: QWidget | None = None):
         super().__init__(parent)
         self._viewer = viewer
-        self._file_motion: tuple[str, CameraMotion] | None = None
+        #: a motion read from a file: its name, the motion, and the estimator that made it
+        #: (None when the file does not say)
+        self._file_motion: tuple[str, CameraMotion, str | None] | None = None
         self.last_layer: Image | None = None
 
         self.image_combo = ComboBox(label="image", choices=self._image_choices)
@@ -410,9 +412,13 @@ class DeconvolutionWidget(QWidget):
         return self._motion_estimate("gamma")
 
     def _motion_estimate(self, key: str):
-        """An entry of the chosen motion layer's estimate summary (None when unknown)."""
+        """An entry of the chosen motion layer's estimate summary (None when unknown); of a
+        motion read from a file, only its "method" (the file's ``estimated_by``)."""
         source = self.motion_combo.value
         if not isinstance(source, Layer):
+            file = self._file_motion
+            if key == "method" and file is not None and source is file[1]:
+                return file[2]
             return None
         summary = source.metadata.get(ESTIMATE_KEY)
         return summary.get(key) if isinstance(summary, dict) else None
@@ -435,11 +441,11 @@ class DeconvolutionWidget(QWidget):
             if not path:
                 return None
         try:
-            motion = CameraMotion.load(path)
+            motion, estimated_by = CameraMotion.load_estimate(path)
         except ValueError as err:
             show_error(f"Deconvolution: {first_line(err)}")
             return None
-        self._file_motion = (Path(path).name, motion)
+        self._file_motion = (Path(path).name, motion, estimated_by)
         self.motion_combo.reset_choices()
         self.motion_combo.value = motion
         show_info(f"Deconvolution: loaded {Path(path).name} ({motion.model} motion, "

@@ -121,7 +121,7 @@ def cmd_estimate(args, console: _Console) -> int:
     image = read_input_image(path, console)
     result, max_blur, source = _estimate_motion(args, console, image, path)
     with _writing(args.output) as (tmp,):
-        result.motion.save(tmp)
+        result.motion.save(tmp, estimated_by=result.info.method)
     console.info(f"{estimate_summary(result, args.method, max_blur, source)}; "
                  f"wrote {args.output}")
     return EXIT_OK
@@ -163,7 +163,7 @@ def cmd_deblur(args, console: _Console) -> int:
     with _writing(*(p for _, p in outputs)) as tmps:
         _io.write_image(tmps[0], restored, bits=output_bits(image))
         if args.save_motion is not None:
-            result.motion.save(tmps[1])
+            result.motion.save(tmps[1], estimated_by=result.info.method)
     wrote = ", ".join(str(p) for _, p in outputs)
     colour = _deconv.color_description(image.shape, args.deconvolution, params)
     done = ("not deconvolved" if result.info.no_blur else
@@ -226,9 +226,11 @@ def cmd_deconvolve(args, console: _Console) -> int:
     args.method = args.deconvolution or "hyperlaplacian"
     params = deconvolution_params(args, args.method)
     gamma_setting(args)
-    motion = CameraMotion.load(motion_path)
+    motion, estimated_by = CameraMotion.load_estimate(motion_path)
     image = read_input_image(path, console)
     work, curve, reason = linear_input(args, image, path)
+    if estimated_by is not None:  # restored as 'deblur' restores an estimate of its method
+        params = restoring_params(work, estimated_by, args.method, params)
     t0 = time.perf_counter()
     restored = console.run(_deconv.iter_deconvolve(work, motion, args.method, **params))
     if not curve.is_linear:
@@ -237,7 +239,8 @@ def cmd_deconvolve(args, console: _Console) -> int:
     with _writing(args.output) as (tmp,):
         _io.write_image(tmp, restored, bits=output_bits(image))
     colour = _deconv.color_description(image.shape, args.method, params)
+    by = f", estimated by {estimated_by}" if estimated_by is not None else ""
     console.info(f"deconvolved {path} ({args.method}, {colour + ', ' if colour else ''}"
-                 f"{_describe(motion)}) in {seconds:.1f} s;"
+                 f"{_describe(motion)}{by}) in {seconds:.1f} s;"
                  f" {gamma_note(curve, reason)}; wrote {args.output}")
     return EXIT_OK

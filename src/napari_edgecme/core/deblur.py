@@ -1,11 +1,14 @@
 """The whole pipeline on one photo: estimate the camera motion, then deconvolve with it.
 
-:func:`deblur` is the engine's one-call face (the CLI's ``edgecme deblur``, the batch
-runner and the demo go through it): the motion is estimated on a working copy
-(:func:`~.estimate.estimate_motion`) and the photo is deconvolved at its own resolution
-(:func:`~.deconv.deconvolve`). With ``gamma`` other than linear, both run in linear light:
-the input is linearised first and the restored image re-encoded as the input was
-(:mod:`.photometry`).
+:func:`deblur` is the engine's one-call face for scripts: the motion is estimated on a
+working copy (:func:`~.estimate.estimate_motion`) and the photo is deconvolved at its own
+resolution (:func:`~.deconv.deconvolve`). The CLI's ``edgecme deblur`` and the batch
+runner take the same two steps with their own progress and reporting, the demo and the
+widgets take them one at a time; every one of them restores an estimate with the
+parameters :func:`restoring_params` sets for its method (and ``edgecme deconvolve`` a
+motion file that names its estimator, ``estimated_by``). With ``gamma`` other than
+linear, both run in linear light: the input is linearised first and the restored image
+re-encoded as the input was (:mod:`.photometry`).
 """
 
 from __future__ import annotations

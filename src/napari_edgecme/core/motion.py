@@ -443,10 +443,16 @@ class CameraMotion:
         return CameraMotion(self.model, self.intrinsics, self.poses[keep], self.weights[keep])
 
     # -- files ---------------------------------------------------------------------------
-    def to_dict(self) -> dict:
-        """The motion as the JSON-ready dict of the motion file (only non-zero weights)."""
+    def to_dict(self, *, estimated_by: str | None = None) -> dict:
+        """The motion as the JSON-ready dict of the motion file (only non-zero weights).
+
+        ``estimated_by`` (optional): the estimator that made the motion, one of
+        ``estimate.METHODS``, kept under that key so that a motion read back is restored
+        as :func:`~.deblur.deblur` restores an estimate of its method
+        (:func:`~.deblur.restoring_params`). Readers that do not know the key ignore it.
+        """
         keep = self.weights > 0
-        return {
+        out = {
             "format": MOTION_FORMAT,
             "version": MOTION_VERSION,
             "model": self.model,
@@ -454,6 +460,9 @@ class CameraMotion:
             "poses": self.poses[keep].tolist(),
             "weights": self.weights[keep].tolist(),
         }
+        if estimated_by is not None:
+            out["estimated_by"] = _check_estimator(estimated_by)
+        return out
 
     @classmethod
     def from_dict(cls, data) -> CameraMotion:
@@ -493,18 +502,30 @@ class CameraMotion:
             raise ValueError("motion file has no poses")
         return cls(model, intrinsics, poses, weights)
 
-    def save(self, path) -> None:
-        """Write the motion as JSON (the ``edgecme-motion`` format), atomically."""
+    def save(self, path, *, estimated_by: str | None = None) -> None:
+        """Write the motion as JSON (the ``edgecme-motion`` format), atomically; with the
+        name of the estimator that made it when given (:meth:`to_dict`)."""
         from .io import write_json
 
-        write_json(path, self.to_dict(), indent=1)
+        write_json(path, self.to_dict(estimated_by=estimated_by), indent=1)
 
     @classmethod
     def load(cls, path) -> CameraMotion:
         """Read a motion file; any problem raises one ``ValueError`` line that names it."""
+        return cls.load_estimate(path)[0]
+
+    @classmethod
+    def load_estimate(cls, path) -> tuple[CameraMotion, str | None]:
+        """Read a motion file and the name of the estimator that made it (None when the
+        file does not say: a ground truth, a trajectory, a file of an older version)."""
         from .io import read_json
 
-        return read_json(path, "motion file", cls.from_dict)
+        def parse(data):
+            motion = cls.from_dict(data)
+            by = data.get("estimated_by")
+            return motion, None if by is None else _check_estimator(by, "motion file's ")
+
+        return read_json(path, "motion file", parse)
 
     # -- comparison ------------------------------------------------------------------------
     def __eq__(self, other) -> bool:
@@ -521,6 +542,17 @@ class CameraMotion:
                 f"image_shape={self.image_shape}, focal_px={self.intrinsics.focal_px:.1f})")
 
 
+
+
+def _check_estimator(name, where: str = "") -> str:
+    """``name`` if it is an estimation method (``estimate.METHODS``), else one
+    ``ValueError`` line."""
+    from .estimate import METHODS
+
+    if not isinstance(name, str) or name not in METHODS:
+        raise ValueError(f"{where}'estimated_by' must be one of {', '.join(METHODS)}; "
+                         f"got {name!r}")
+    return name
 
 
 def _check_points(points) -> np.ndarray:
