@@ -11,6 +11,7 @@ iterations: the tests check the plumbing, not the quality."""
 from __future__ import annotations
 
 import csv
+import json
 import os
 import shutil
 import signal
@@ -107,6 +108,8 @@ def test_local_cluster_restores_every_good_photo_like_deblur(local_run, referenc
         motion = f"{name}.motion.json"
         assert (out / motion).read_bytes() == (reference / motion).read_bytes(), name
         assert rows[name]["method"] in ("xu", "xu+ep") and float(rows[name]["blur_extent_px"]) > 0
+        # the motion file names the method that ran, so 'deconvolve' restores it as deblur
+        assert json.loads((out / motion).read_text())["estimated_by"] == rows[name]["method"]
         assert rows[name]["worker"].startswith("tcp://127.0.0.1")
         for role in ("before", "after", "psf"):
             thumb = read_image(out / rows[name][role])

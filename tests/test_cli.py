@@ -201,7 +201,8 @@ def test_deblur_improves_aligned_psnr_and_saves_the_motion(cd, capsys):
     after = aligned_psnr(as_unit(read_image("restored.png")), sharp)
     print(f"deblur: {before:.2f} -> {after:.2f} dB")
     assert after >= before + 2.0
-    assert CameraMotion.load("m.json").image_shape == (128, 128)
+    motion, estimated_by = CameraMotion.load_estimate("m.json")
+    assert motion.image_shape == (128, 128) and estimated_by == "xu"
 
 
 def test_deblur_falls_back_to_xu_with_one_warning_line_when_edges_are_missing(tmp_path,

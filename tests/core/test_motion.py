@@ -159,6 +159,9 @@ def test_an_unknown_estimator_is_refused_in_one_line(tmp_path, cam):
     with pytest.raises(ValueError, match="motion file's 'estimated_by' must be one of") as info:
         CameraMotion.load_estimate(path)
     assert "\n" not in str(info.value) and str(path) in str(info.value)
+    # the motion itself is sound: readers that do not steer a restoration by the name
+    # (edgecme psf, the suites) read it as ever
+    assert CameraMotion.load(path) == CameraMotion.from_dict(GOOD)
 
 
 def test_only_nonzero_weights_are_stored(tmp_path, cam):

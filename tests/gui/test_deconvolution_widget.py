@@ -137,6 +137,10 @@ def test_a_motion_file_is_restored_as_deblur_restores_an_estimate_of_its_method(
     path = tmp_path / "motion.json"
     s.widget.fitted_motion().motion.save(path, estimated_by=estimated_by)
     s.widget.load_motion(path)
+    assert s.widget._motion_estimate("method") == estimated_by
+    s.widget.motion_combo.value = s.image  # the layer's motion: not the file's estimator
+    assert s.widget._motion_estimate("method") is None
+    s.widget.motion_combo.value = s.widget._file_motion[1]
     seen = {}
 
     def spy(image, motion, method, **params):

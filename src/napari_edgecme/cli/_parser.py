@@ -244,9 +244,10 @@ def build_parser() -> argparse.ArgumentParser:
                 "'estimate', 'deblur --save-motion' or 'synth').")
     p.add_argument("image", type=Path, metavar="IMAGE", help="blurred photo")
     p.add_argument("--motion", type=Path, required=True, metavar="MOTION.json",
-                   help="camera motion (applied at the image's size; one written by "
-                        "'estimate' names its estimator and is restored as 'deblur' "
-                        "restores that method's estimates)")
+                   help="camera motion (applied at the image's size; one that names its "
+                        "estimator, as 'estimate', 'deblur --save-motion' and 'batch' "
+                        "write them, is restored as 'deblur' restores that method's "
+                        "estimates)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
                    help="restored image (.png, .tif keeps float32, .jpg, .bmp)")
     p.add_argument("--deconvolution", choices=_deconv.METHODS, default=None,

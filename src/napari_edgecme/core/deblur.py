@@ -5,8 +5,9 @@ working copy (:func:`~.estimate.estimate_motion`) and the photo is deconvolved a
 resolution (:func:`~.deconv.deconvolve`). The CLI's ``edgecme deblur`` and the batch
 runner take the same two steps with their own progress and reporting, the demo and the
 widgets take them one at a time; every one of them restores an estimate with the
-parameters :func:`restoring_params` sets for its method (and ``edgecme deconvolve`` a
-motion file that names its estimator, ``estimated_by``). With ``gamma`` other than
+parameters :func:`restoring_params` sets for its method (and so do ``edgecme
+deconvolve`` and the deconvolution widget with a motion file that names its estimator,
+``estimated_by``). With ``gamma`` other than
 linear, both run in linear light: the input is linearised first and the restored image
 re-encoded as the input was (:mod:`.photometry`).
 """

@@ -446,10 +446,18 @@ class CameraMotion:
     def to_dict(self, *, estimated_by: str | None = None) -> dict:
         """The motion as the JSON-ready dict of the motion file (only non-zero weights).
 
-        ``estimated_by`` (optional): the estimator that made the motion, one of
-        ``estimate.METHODS``, kept under that key so that a motion read back is restored
-        as :func:`~.deblur.deblur` restores an estimate of its method
-        (:func:`~.deblur.restoring_params`). Readers that do not know the key ignore it.
+        Parameters
+        ----------
+        estimated_by : {"ep", "xu", "xu+ep"}, optional
+            The estimator that made the motion (``estimate.info.method``), kept under that
+            key so that a motion read back is restored as :func:`~.deblur.deblur`
+            restores an estimate of its method (:func:`~.deblur.restoring_params`).
+            :meth:`from_dict` and :meth:`load` ignore the key; :meth:`load_estimate`
+            reads it.
+
+        Returns
+        -------
+        dict
         """
         keep = self.weights > 0
         out = {
@@ -503,21 +511,51 @@ class CameraMotion:
         return cls(model, intrinsics, poses, weights)
 
     def save(self, path, *, estimated_by: str | None = None) -> None:
-        """Write the motion as JSON (the ``edgecme-motion`` format), atomically; with the
-        name of the estimator that made it when given (:meth:`to_dict`)."""
+        """Write the motion as JSON (the ``edgecme-motion`` format), atomically.
+
+        Parameters
+        ----------
+        path : path-like
+        estimated_by : {"ep", "xu", "xu+ep"}, optional
+            The estimator that made the motion (:meth:`to_dict`).
+        """
         from .io import write_json
 
         write_json(path, self.to_dict(estimated_by=estimated_by), indent=1)
 
     @classmethod
     def load(cls, path) -> CameraMotion:
-        """Read a motion file; any problem raises one ``ValueError`` line that names it."""
-        return cls.load_estimate(path)[0]
+        """Read a motion file; any problem raises one ``ValueError`` line that names it.
+
+        The estimator's name a file may carry (``estimated_by``) is not read: see
+        :meth:`load_estimate`.
+        """
+        from .io import read_json
+
+        return read_json(path, "motion file", cls.from_dict)
 
     @classmethod
     def load_estimate(cls, path) -> tuple[CameraMotion, str | None]:
-        """Read a motion file and the name of the estimator that made it (None when the
-        file does not say: a ground truth, a trajectory, a file of an older version)."""
+        """Read a motion file and the name of the estimator that made it.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        motion : CameraMotion
+        estimated_by : {"ep", "xu", "xu+ep"} or None
+            None when the file names no estimator (a ground truth, a trajectory, a file
+            written before the key existed, or ``null``).
+
+        Raises
+        ------
+        ValueError
+            One line: the motion is malformed (as :meth:`load`), or the file names an
+            estimator this program does not know -- it would steer the restoration, so it
+            is not guessed.
+        """
         from .io import read_json
 
         def parse(data):
