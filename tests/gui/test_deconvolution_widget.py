@@ -124,12 +124,29 @@ def test_an_rgb_image_with_a_motion_from_a_json_file(qtbot, viewer_model, photo_
     assert any("loaded truth.json" in text for text in notifications.texts("info"))
 
 
+def _parameters_of_a_run(widget, wait_for_run, monkeypatch) -> dict:
+    """Run ``widget`` to the end; the parameters its deconvolution was called with."""
+    from napari_edgecme._widgets import _gamma
+    from napari_edgecme.core import deconv
+
+    seen = {}
+
+    def spy(image, motion, method, **params):
+        seen.update(params)
+        return (yield from deconv.iter_deconvolve(image, motion, method, **params))
+
+    monkeypatch.setattr(_gamma, "iter_deconvolve", spy)
+    widget.run_button.click()
+    wait_for_run(widget)
+    assert widget.runner.outcome == "done"
+    return seen
+
+
 @pytest.mark.parametrize("estimated_by", [None, "ep"])
 def test_a_motion_file_is_restored_as_deblur_restores_an_estimate_of_its_method(
         setup, tmp_path, wait_for_run, monkeypatch, estimated_by):
     """A motion file naming EpAlone as its estimator (``estimated_by``) gets EpAlone's
     weight floor, as its layer would; one naming none gets the noise's weight."""
-    from napari_edgecme._widgets import _gamma
     from napari_edgecme.core import deconv
     from napari_edgecme.core.deblur import restoring_params
 
@@ -141,16 +158,7 @@ def test_a_motion_file_is_restored_as_deblur_restores_an_estimate_of_its_method(
     s.widget.motion_combo.value = s.image  # the layer's motion: not the file's estimator
     assert s.widget._motion_estimate("method") is None
     s.widget.motion_combo.value = s.widget._file_motion[1]
-    seen = {}
-
-    def spy(image, motion, method, **params):
-        seen.update(params)
-        return (yield from deconv.iter_deconvolve(image, motion, method, **params))
-
-    monkeypatch.setattr(_gamma, "iter_deconvolve", spy)
-    s.widget.run_button.click()
-    wait_for_run(s.widget)
-    assert s.widget.runner.outcome == "done"
+    seen = _parameters_of_a_run(s.widget, wait_for_run, monkeypatch)
     if estimated_by == "ep":
         expected = restoring_params(s.original, "ep", "hyperlaplacian", {"lambda_f": None})
         assert seen["lambda_f"] == expected["lambda_f"] >= deconv.REFERENCE_LAMBDA_F
@@ -338,23 +346,13 @@ def test_the_motion_estimated_by_xu_ep_sharpens_the_image(qtbot, viewer_model, e
 @pytest.mark.parametrize("estimated_by", [None, "xu+ep", "ep"])
 def test_a_motion_is_restored_as_deblur_restores_an_estimate_of_its_method(
         setup, wait_for_run, monkeypatch, estimated_by):
-    from napari_edgecme._widgets import _gamma
     from napari_edgecme.core import deconv
     from napari_edgecme.core.deblur import restoring_params
 
     s = setup
     if estimated_by is not None:  # as the camera-motion widget records its estimate
         s.image.metadata = {**s.image.metadata, "edgecme_estimate": {"method": estimated_by}}
-    seen = {}
-
-    def spy(image, motion, method, **params):
-        seen.update(params)
-        return (yield from deconv.iter_deconvolve(image, motion, method, **params))
-
-    monkeypatch.setattr(_gamma, "iter_deconvolve", spy)
-    s.widget.run_button.click()
-    wait_for_run(s.widget)
-    assert s.widget.runner.outcome == "done"
+    seen = _parameters_of_a_run(s.widget, wait_for_run, monkeypatch)
     expected = restoring_params(s.original, estimated_by or "xu", "hyperlaplacian",
                                 {"lambda_f": None})
     assert seen["lambda_f"] == expected["lambda_f"]

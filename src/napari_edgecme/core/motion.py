@@ -583,14 +583,11 @@ class CameraMotion:
 
 
 def _check_estimator(name, where: str = "") -> str:
-    """``name`` if it is an estimation method (``estimate.METHODS``), else one
-    ``ValueError`` line."""
+    """``name`` if it is an estimation method (``estimate.METHODS``, imported here: the
+    estimator imports this module), else the engine's one ``ValueError`` line."""
     from .estimate import METHODS
 
-    if not isinstance(name, str) or name not in METHODS:
-        raise ValueError(f"{where}'estimated_by' must be one of {', '.join(METHODS)}; "
-                         f"got {name!r}")
-    return name
+    return check_choice(name, f"{where}estimated_by", METHODS)
 
 
 def _check_points(points) -> np.ndarray:
