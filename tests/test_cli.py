@@ -164,7 +164,7 @@ def test_estimate_writes_a_loadable_motion_for_the_image(cd, capsys):
     status, _, err = run(["estimate", "blurred.png", "-o", "m.json", "--method", "xu",
                           "--model", "inplane", "--max-blur", "13", *FAST], capsys)
     assert status == 0, err
-    motion, estimated_by = CameraMotion.load_estimate("m.json")
+    motion, estimated_by, _ = CameraMotion.load_estimate("m.json")
     assert motion.model == "inplane" and motion.image_shape == (128, 128)
     assert motion.n_poses >= 2
     assert estimated_by == "xu"
@@ -201,7 +201,7 @@ def test_deblur_improves_aligned_psnr_and_saves_the_motion(cd, capsys):
     after = aligned_psnr(as_unit(read_image("restored.png")), sharp)
     print(f"deblur: {before:.2f} -> {after:.2f} dB")
     assert after >= before + 2.0
-    motion, estimated_by = CameraMotion.load_estimate("m.json")
+    motion, estimated_by, _ = CameraMotion.load_estimate("m.json")
     assert motion.image_shape == (128, 128) and estimated_by == "xu"
 
 
@@ -289,28 +289,36 @@ def test_lam_is_passed_as_lambda_f_so_our_own_cli_raises_no_deprecation(cd, caps
 
 def test_deconvolve_restores_an_epalone_motion_file_as_deblur_restores_epalone(tmp_path,
                                                                                capsys):
-    """A motion file that names EpAlone as its estimator is restored with the weight
-    floor ``deblur`` gives an EpAlone estimate (on a clean photo, the reference weight
-    instead of the lower one its noise sets); the same motion without the name gets the
-    noise's weight, as a ground truth does."""
+    """A motion file that names EpAlone as its estimator is restored with the prior
+    ``deblur`` gives an EpAlone estimate of the misfit the file records: on a clean photo
+    the reference weight (instead of the lower one its noise sets) at a misfit of 4%, four
+    times it at 10%, eight times it when the file records none. The same motion without
+    the name gets the noise's weight, as a ground truth does."""
     from napari_edgecme.core.deconv import REFERENCE_LAMBDA_F, noise_lambda_f
 
     case = synth.make_case(synth.sample_image("edges", 96), "inplane", 7, 0.002, rng=1)
     write_image(tmp_path / "b.png", case.blurred)
     assert noise_lambda_f(read_image(tmp_path / "b.png")) < REFERENCE_LAMBDA_F  # clean
-    case.motion.save(tmp_path / "ep.json", estimated_by="ep")
+    for name, misfit in [("ep4", 0.04), ("ep10", 0.10), ("ep", None)]:
+        case.motion.save(tmp_path / f"{name}.json", estimated_by="ep", profile_misfit=misfit)
     case.motion.save(tmp_path / "plain.json")
     outputs = {}
-    for name, extra in [("ep", []), ("plain", []), ("reference", ["--lam", "1500"])]:
-        motion = tmp_path / ("plain.json" if name != "ep" else "ep.json")
-        status, _, err = run(["deconvolve", tmp_path / "b.png", "--motion", motion, "-o",
-                              tmp_path / f"{name}.png", *extra], capsys)
+    for name, motion, extra in [("ep4", "ep4", []), ("ep10", "ep10", []), ("ep", "ep", []),
+                                ("plain", "plain", []),
+                                ("reference", "plain", ["--lam", "1500"]),
+                                ("4x", "plain", ["--lam", "375"]),
+                                ("8x", "plain", ["--lam", "187.5"])]:
+        status, _, err = run(["deconvolve", tmp_path / "b.png", "--motion",
+                              tmp_path / f"{motion}.json", "-o", tmp_path / f"{name}.png",
+                              *extra], capsys)
         assert status == 0, err
         outputs[name] = (tmp_path / f"{name}.png").read_bytes()
-        if name == "ep":
+        if name.startswith("ep"):
             assert "estimated by ep" in err[-1]
-    assert outputs["ep"] == outputs["reference"]
-    assert outputs["ep"] != outputs["plain"]
+    assert outputs["ep4"] == outputs["reference"]
+    assert outputs["ep10"] == outputs["4x"]
+    assert outputs["ep"] == outputs["8x"]
+    assert outputs["ep4"] != outputs["plain"]
 
 
 def test_batch_lam_reaches_each_photos_deconvolution_as_lambda_f():

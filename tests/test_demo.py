@@ -51,10 +51,13 @@ def test_demo_runs_in_reduced_mode_and_reports_the_table(demo_run):
         else:
             assert math.isfinite(row["psnr"]) and -1 <= row["ncc"] <= 1
             assert f"| {row['psnr']:.2f} |" in report
-            motion, estimated_by = CameraMotion.load_estimate(
+            motion, estimated_by, misfit = CameraMotion.load_estimate(
                 out / f"motion-{key.replace('+', '-')}.json")
             assert motion.image_shape == (128, 128)
             assert estimated_by == row["method_run"] in (key, "xu")  # Xu+Ep may run as Xu
+            # the profiles' misfit, which sets an EpAlone motion's restoration
+            assert misfit == row["profile_misfit"]
+            assert (misfit is not None) == (estimated_by == "ep" or key != "xu")
 
 
 def test_demo_writes_readable_images_and_figures_and_only_its_own_files(demo_run):

@@ -163,7 +163,8 @@ def run_demo(out="edgecme-demo", *, size: int | None = None, seed: int = 0,
                 row["estimate_s"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
                 image = run(iter_deconvolve(case.blurred, est.motion, **restoring_params(
-                    case.blurred, est.info.method, "hyperlaplacian")))
+                    case.blurred, est.info.method, "hyperlaplacian",
+                    profile_misfit=est.info.profile_misfit)))
                 row["deconvolve_s"] = time.perf_counter() - t0
         except Exception as err:  # an estimator failing is a result of the demo
             if debug:
@@ -180,7 +181,8 @@ def run_demo(out="edgecme-demo", *, size: int | None = None, seed: int = 0,
         row.update(psnr=aligned_psnr(image, case.sharp), ssim=aligned_ssim(image, case.sharp),
                    ncc=motion_psf_ncc(est.motion, truth), poses=est.motion.n_poses,
                    extent=est.motion.blur_extent(), notes=notes,
-                   message=est.info.message, method_run=est.info.method)
+                   message=est.info.message, method_run=est.info.method,
+                   profile_misfit=est.info.profile_misfit)
         row["gain"] = row["psnr"] - psnr_blurred
         log(f"{name}: PSNR {row['psnr']:.2f} dB ({row['gain']:+.2f} dB), PSF NCC "
             f"{row['ncc']:.3f}; estimated in {row['estimate_s']:.1f} s, deconvolved in "
@@ -352,13 +354,14 @@ def _write_all(out: Path, case, truth, estimates, restored, profiles, figures, r
         "psf-fields.png": figures.write_psf_fields,
         "comparison.png": figures.write_comparison,
     }
-    ran = {row["key"]: row["method_run"] for row in rows if "method_run" in row}
+    ran = {row["key"]: (row["method_run"], row["profile_misfit"])
+           for row in rows if "method_run" in row}
     for method, motion in estimates.items():
         writers[f"restored-{_slug(method)}.png"] = (
             lambda p, m=method: _io.write_image(p, restored[m]))
         # named by the method that ran (Xu+Ep may have run as Xu)
-        writers[f"motion-{_slug(method)}.json"] = partial(motion.save,
-                                                          estimated_by=ran[method])
+        writers[f"motion-{_slug(method)}.json"] = partial(
+            motion.save, estimated_by=ran[method][0], profile_misfit=ran[method][1])
     if figures.mpl:
         writers["edge-profiles.png"] = figures.write_profile_plot
     names = [*writers, "report.md", "report.json"]

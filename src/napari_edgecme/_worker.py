@@ -71,11 +71,13 @@ def _job_estimate(job: dict) -> dict:
            "message": est.info.message, "converged": est.info.converged,
            "method_run": est.info.method, "no_blur": est.info.no_blur}
     if job.get("motion"):
-        est.motion.save(job["motion"], estimated_by=est.info.method)
+        est.motion.save(job["motion"], estimated_by=est.info.method,
+                        profile_misfit=est.info.profile_misfit)
     if job.get("restored"):
         t0, c0 = time.perf_counter(), time.process_time()
         restored = deconvolve(image, est.motion,
-                              **restoring_params(image, est.info.method, "hyperlaplacian"))
+                              **restoring_params(image, est.info.method, "hyperlaplacian",
+                                                 profile_misfit=est.info.profile_misfit))
         out["deconvolve_s"] = time.perf_counter() - t0
         out["deconvolve_cpu_s"] = time.process_time() - c0
         np.save(job["restored"], restored)

@@ -143,10 +143,32 @@ def test_a_motion_file_names_the_estimator_that_made_it(tmp_path, cam, method):
     m.save(plain)
     assert json.loads(named.read_text())["estimated_by"] == method
     assert "estimated_by" not in json.loads(plain.read_text())
-    assert CameraMotion.load_estimate(named) == (m, method)
-    assert CameraMotion.load_estimate(plain) == (m, None)
+    assert CameraMotion.load_estimate(named) == (m, method, None)
+    assert CameraMotion.load_estimate(plain) == (m, None, None)
     assert CameraMotion.load(named) == m
     assert CameraMotion.from_dict(m.to_dict(estimated_by=method)) == m
+
+
+def test_a_motion_file_keeps_the_profile_misfit_of_its_estimate(tmp_path, cam):
+    """``profile_misfit`` (the share of the edge profiles' energy the estimate leaves
+    unexplained, which sets an EpAlone motion's restoration) is written when given and
+    read back; a misfit outside [0, 1] is refused in one line, on writing and reading."""
+    m = CameraMotion("translation", cam, [[0, 0], [1, 0]], [1, 1])
+    m.save(tmp_path / "m.json", estimated_by="ep", profile_misfit=0.137)
+    assert json.loads((tmp_path / "m.json").read_text())["profile_misfit"] == 0.137
+    assert CameraMotion.load_estimate(tmp_path / "m.json") == (m, "ep", 0.137)
+    with pytest.raises(ValueError, match=r"^profile_misfit must be a number in \[0, 1\]; "
+                                         r"got 1\.5$"):
+        m.save(tmp_path / "bad.json", profile_misfit=1.5)
+    assert not (tmp_path / "bad.json").exists()
+    for bad in ("0.1", True, -0.01):
+        path = tmp_path / "bad.json"
+        path.write_text(json.dumps({**GOOD, "profile_misfit": bad}))
+        with pytest.raises(ValueError, match=r"motion file's profile_misfit must be a "
+                                             r"number in \[0, 1\]") as info:
+            CameraMotion.load_estimate(path)
+        assert "\n" not in str(info.value)
+        assert CameraMotion.load(path).n_poses >= 1  # the motion itself reads as ever
 
 
 def test_an_unknown_estimator_is_refused_in_one_line(tmp_path, cam):

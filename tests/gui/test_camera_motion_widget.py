@@ -101,9 +101,11 @@ def test_a_run_adds_an_aligned_psf_field_and_latent_carrying_the_motion(setup, w
     scatter = s.widget.canvas.figure.axes[0].collections[0]
     assert len(scatter.get_offsets()) == motion.n_poses
     assert s.widget.save_button.isEnabled()
-    saved, estimated_by = CameraMotion.load_estimate(s.widget.save_motion(tmp_path / "m.json"))
+    saved, estimated_by, misfit = CameraMotion.load_estimate(
+        s.widget.save_motion(tmp_path / "m.json"))
     assert_same_motion(saved, motion)
     assert estimated_by == "xu"  # the file names its estimator, as the layer does
+    assert misfit is None  # Xu fits no edge profiles
     assert f"{motion.n_poses} poses" in s.widget.status.text()
     # one blur extent (issue 15, item 10): the number shown is CameraMotion.blur_extent
     (shown,) = re.findall(r"blur extent (\d+\.\d) px \(longest side of the PSFs\)",

@@ -142,25 +142,29 @@ def _parameters_of_a_run(widget, wait_for_run, monkeypatch) -> dict:
     return seen
 
 
-@pytest.mark.parametrize("estimated_by", [None, "ep"])
+@pytest.mark.parametrize("estimated_by, misfit", [(None, None), ("ep", 0.15), ("ep", 0.06)])
 def test_a_motion_file_is_restored_as_deblur_restores_an_estimate_of_its_method(
-        setup, tmp_path, wait_for_run, monkeypatch, estimated_by):
+        setup, tmp_path, wait_for_run, monkeypatch, estimated_by, misfit):
     """A motion file naming EpAlone as its estimator (``estimated_by``) gets EpAlone's
-    weight floor, as its layer would; one naming none gets the noise's weight."""
+    stronger prior for the misfit it records, as its layer would; one naming none gets
+    the noise's weight."""
     from napari_edgecme.core import deconv
     from napari_edgecme.core.deblur import restoring_params
 
     s = setup
     path = tmp_path / "motion.json"
-    s.widget.fitted_motion().motion.save(path, estimated_by=estimated_by)
+    s.widget.fitted_motion().motion.save(path, estimated_by=estimated_by,
+                                         profile_misfit=misfit)
     s.widget.load_motion(path)
     assert s.widget._motion_estimate("method") == estimated_by
+    assert s.widget._motion_estimate("profile_misfit") == misfit
     s.widget.motion_combo.value = s.image  # the layer's motion: not the file's estimator
     assert s.widget._motion_estimate("method") is None
     s.widget.motion_combo.value = s.widget._file_motion[1]
     seen = _parameters_of_a_run(s.widget, wait_for_run, monkeypatch)
     if estimated_by == "ep":
-        expected = restoring_params(s.original, "ep", "hyperlaplacian", {"lambda_f": None})
+        expected = restoring_params(s.original, "ep", "hyperlaplacian", {"lambda_f": None},
+                                    profile_misfit=misfit)
         assert seen["lambda_f"] == expected["lambda_f"] >= deconv.REFERENCE_LAMBDA_F
     else:
         assert seen["lambda_f"] is None
@@ -351,10 +355,11 @@ def test_a_motion_is_restored_as_deblur_restores_an_estimate_of_its_method(
 
     s = setup
     if estimated_by is not None:  # as the camera-motion widget records its estimate
-        s.image.metadata = {**s.image.metadata, "edgecme_estimate": {"method": estimated_by}}
+        s.image.metadata = {**s.image.metadata, "edgecme_estimate": {
+            "method": estimated_by, "profile_misfit": 0.08}}
     seen = _parameters_of_a_run(s.widget, wait_for_run, monkeypatch)
     expected = restoring_params(s.original, estimated_by or "xu", "hyperlaplacian",
-                                {"lambda_f": None})
+                                {"lambda_f": None}, profile_misfit=0.08)
     assert seen["lambda_f"] == expected["lambda_f"]
     if estimated_by == "ep":  # EpAlone's floor: never below the reference weight
         assert seen["lambda_f"] >= deconv.REFERENCE_LAMBDA_F

@@ -249,7 +249,8 @@ def estimate_in_linear_light(data: np.ndarray, curve: Gamma, reason: str, *args,
 
 
 def deconvolve_in_linear_light(data: np.ndarray, curve: Gamma, motion, method: str, *,
-                               estimated_by: str | None = None, **params):
+                               estimated_by: str | None = None,
+                               profile_misfit: float | None = None, **params):
     """:func:`~napari_edgecme.core.deconv.iter_deconvolve` on ``data`` in linear light.
 
     A generator, for the worker thread: it decodes ``data`` through ``curve``, yields the
@@ -267,9 +268,13 @@ def deconvolve_in_linear_light(data: np.ndarray, curve: Gamma, motion, method: s
         The method that estimated ``motion``, when known: its restoration's parameters
         as :func:`~napari_edgecme.core.deblur.restoring_params` sets them (as ``deblur``
         restores it).
+    profile_misfit : float, optional
+        That estimate's edge-profile misfit, when known (EpAlone's restoration depends on
+        it: :func:`~napari_edgecme.core.deblur.ep_prior_factor`).
     """
     linear = data if curve.is_linear else curve.decode(data)
     if estimated_by is not None:
-        params = restoring_params(linear, estimated_by, method, params)
+        params = restoring_params(linear, estimated_by, method, params,
+                                  profile_misfit=profile_misfit)
     restored = yield from iter_deconvolve(linear, motion, method, **params)
     return restored if curve.is_linear else curve.encode(restored)

@@ -392,7 +392,7 @@ class CameraMotionWidget(QWidget):
                    "focal_px": info.focal_px, "n_profiles": info.n_profiles,
                    "seconds": round(info.seconds, 3), "converged": info.converged,
                    "message": info.message, "blur_size": info.blur_size,
-                   "edge_spread": info.edge_spread,
+                   "edge_spread": info.edge_spread, "profile_misfit": info.profile_misfit,
                    "gamma": info.gamma, "gamma_reason": info.gamma_reason}
         meta = {MOTION_KEY: motion.to_dict(), SOURCE_KEY: image.name, ESTIMATE_KEY: summary}
         glyphs = psf_glyphs(motion, psf_grid(motion.image_shape))
@@ -465,7 +465,9 @@ class CameraMotionWidget(QWidget):
                 return None
         path = Path(path)
         try:
-            self.last_motion.save(path, estimated_by=self.last_estimate.info.method)
+            info = self.last_estimate.info
+            self.last_motion.save(path, estimated_by=info.method,
+                                  profile_misfit=info.profile_misfit)
         except OSError as err:
             show_error(f"Camera motion: cannot save {path}: {first_line(err)}")
             return None

@@ -212,7 +212,8 @@ class DeconvolutionWidget(QWidget):
         self._viewer = viewer
         #: a motion read from a file: its name, the motion, and the estimator that made it
         #: (None when the file does not say)
-        self._file_motion: tuple[str, CameraMotion, str | None] | None = None
+        # (file name, motion, estimated_by, profile_misfit)
+        self._file_motion: tuple[str, CameraMotion, str | None, float | None] | None = None
         self.last_layer: Image | None = None
 
         self.image_combo = ComboBox(label="image", choices=self._image_choices)
@@ -413,12 +414,13 @@ class DeconvolutionWidget(QWidget):
 
     def _motion_estimate(self, key: str):
         """An entry of the chosen motion layer's estimate summary (None when unknown); of a
-        motion read from a file, only its "method" (the file's ``estimated_by``)."""
+        motion read from a file, only its "method" and "profile_misfit" (the file's
+        ``estimated_by`` and ``profile_misfit``)."""
         source = self.motion_combo.value
         if not isinstance(source, Layer):
             file = self._file_motion
-            if key == "method" and file is not None and source is file[1]:
-                return file[2]
+            if file is not None and source is file[1]:
+                return {"method": file[2], "profile_misfit": file[3]}.get(key)
             return None
         summary = source.metadata.get(ESTIMATE_KEY)
         return summary.get(key) if isinstance(summary, dict) else None
@@ -441,11 +443,11 @@ class DeconvolutionWidget(QWidget):
             if not path:
                 return None
         try:
-            motion, estimated_by = CameraMotion.load_estimate(path)
+            motion, estimated_by, misfit = CameraMotion.load_estimate(path)
         except ValueError as err:
             show_error(f"Deconvolution: {first_line(err)}")
             return None
-        self._file_motion = (Path(path).name, motion, estimated_by)
+        self._file_motion = (Path(path).name, motion, estimated_by, misfit)
         self.motion_combo.reset_choices()
         self.motion_combo.value = motion
         show_info(f"Deconvolution: loaded {Path(path).name} ({motion.model} motion, "
@@ -485,12 +487,15 @@ class DeconvolutionWidget(QWidget):
         if fit.guess:
             show_warning(f"Deconvolution: {fit.note}")
         method, params = self.method_combo.value, self.parameters()
-        # restored as deblur restores an estimate of its method (EpAlone: the weight floor)
+        # restored as deblur restores an estimate of its method (EpAlone: a prior that
+        # grows with its edge profiles' misfit)
         estimated_by = self._motion_estimate("method")
         if estimated_by not in ESTIMATION_METHODS:
             estimated_by = None
-        gen = deconvolve_in_linear_light(data, curve, fit.motion, method,
-                                         estimated_by=estimated_by, **params)
+        misfit = self._motion_estimate("profile_misfit")
+        gen = deconvolve_in_linear_light(
+            data, curve, fit.motion, method, estimated_by=estimated_by,
+            profile_misfit=misfit if isinstance(misfit, float) else None, **params)
         settings = {"method": method, **params, "gamma": curve.name, "gamma_reason": reason}
         self.runner.start(gen, on_result=partial(self._show_result, image, fit.motion,
                                                  settings))

@@ -101,7 +101,8 @@ def deblur_photo(name: str, data: bytes, options: argparse.Namespace) -> dict:
                     deconvolution_params(options, options.deconvolution))
                 encoded = folder / ("restored" + Path(name).suffix)
                 _io.write_image(encoded, restored, bits=output_bits(image))
-                result.motion.save(folder / "motion.json", estimated_by=result.info.method)
+                result.motion.save(folder / "motion.json", estimated_by=result.info.method,
+                                   profile_misfit=result.info.profile_misfit)
                 _io.write_image(folder / "before.png", _thumbnail(image))
                 _io.write_image(folder / "after.png", _thumbnail(restored))
                 _io.write_image(folder / "psf.png", _psf_thumbnail(result.motion))

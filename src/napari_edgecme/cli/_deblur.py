@@ -121,7 +121,8 @@ def cmd_estimate(args, console: _Console) -> int:
     image = read_input_image(path, console)
     result, max_blur, source = _estimate_motion(args, console, image, path)
     with _writing(args.output) as (tmp,):
-        result.motion.save(tmp, estimated_by=result.info.method)
+        result.motion.save(tmp, estimated_by=result.info.method,
+                           profile_misfit=result.info.profile_misfit)
     console.info(f"{estimate_summary(result, args.method, max_blur, source)}; "
                  f"wrote {args.output}")
     return EXIT_OK
@@ -141,7 +142,8 @@ def deblur_image(args, console: _Console, image, path: Path, params: dict):
     if result.info.no_blur:  # nothing to undo: the photo comes back as it was
         restored = image
     else:
-        params = restoring_params(work, result.info.method, args.deconvolution, params)
+        params = restoring_params(work, result.info.method, args.deconvolution, params,
+                                  profile_misfit=result.info.profile_misfit)
         restored = console.run(_deconv.iter_deconvolve(work, result.motion,
                                                        args.deconvolution, **params))
         if not curve.is_linear:
@@ -163,7 +165,8 @@ def cmd_deblur(args, console: _Console) -> int:
     with _writing(*(p for _, p in outputs)) as tmps:
         _io.write_image(tmps[0], restored, bits=output_bits(image))
         if args.save_motion is not None:
-            result.motion.save(tmps[1], estimated_by=result.info.method)
+            result.motion.save(tmps[1], estimated_by=result.info.method,
+                               profile_misfit=result.info.profile_misfit)
     wrote = ", ".join(str(p) for _, p in outputs)
     colour = _deconv.color_description(image.shape, args.deconvolution, params)
     done = ("not deconvolved" if result.info.no_blur else
@@ -226,11 +229,12 @@ def cmd_deconvolve(args, console: _Console) -> int:
     args.method = args.deconvolution or "hyperlaplacian"
     params = deconvolution_params(args, args.method)
     gamma_setting(args)
-    motion, estimated_by = CameraMotion.load_estimate(motion_path)
+    motion, estimated_by, misfit = CameraMotion.load_estimate(motion_path)
     image = read_input_image(path, console)
     work, curve, reason = linear_input(args, image, path)
     if estimated_by is not None:  # restored as 'deblur' restores an estimate of its method
-        params = restoring_params(work, estimated_by, args.method, params)
+        params = restoring_params(work, estimated_by, args.method, params,
+                                  profile_misfit=misfit)
     t0 = time.perf_counter()
     restored = console.run(_deconv.iter_deconvolve(work, motion, args.method, **params))
     if not curve.is_linear:

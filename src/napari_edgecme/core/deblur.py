@@ -18,7 +18,21 @@ from ._validation import as_float_image, check_choice
 from .estimate import estimate_motion
 from .photometry import decide_gamma, parse_gamma
 
-__all__ = ["deblur", "record_gamma", "restoring_params"]
+__all__ = ["EP_PRIOR_MAX_FACTOR", "EP_PRIOR_MISFIT", "deblur", "ep_prior_factor",
+           "record_gamma", "restoring_params"]
+
+#: An EpAlone motion is restored with the hyper-Laplacian's prior weight times
+#: ``(profile_misfit / EP_PRIOR_MISFIT) ** 2`` (:func:`ep_prior_factor`): the share of the
+#: edge profiles' energy the estimate leaves unexplained measures how rough the motion is,
+#: and a wrong PSF acts on the restoration like extra noise, which a stronger prior holds
+#: back. Measured with EpAlone's misfit gate lifted (``benchmarks/results/ep-selfcheck.md``):
+#: at the former weight, the cases of misfit 12-20% deconvolved worse than their input on
+#: 13 of 22 ``lai`` cases; with the factor none of the 56 cases under 20% does, and the
+#: ``levin`` captures gain 3.4 dB instead of 3.0.
+EP_PRIOR_MISFIT = 0.05
+#: The largest factor :func:`ep_prior_factor` gives (a motion of 14% misfit or more), and
+#: the factor of an EpAlone motion whose misfit is not known.
+EP_PRIOR_MAX_FACTOR = 8.0
 
 
 def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: float | None = None,
@@ -80,23 +94,47 @@ def deblur(image, method: str = "xu+ep", model: str = "rotation", max_blur: floa
         return as_float_image(image, allow_rgb=True), estimate
     restored = deconvolve(work, estimate.motion, deconvolution, callback=callback,
                           **restoring_params(work, estimate.info.method, deconvolution,
-                                             deconv_params))
+                                             deconv_params,
+                                             profile_misfit=estimate.info.profile_misfit))
     if not curve.is_linear:
         restored = curve.encode(restored)
     return restored, estimate
 
 
-def restoring_params(image, method: str, deconvolution: str, deconv_params=None) -> dict:
+def ep_prior_factor(profile_misfit: float | None) -> float:
+    """How much stronger than the reference prior an EpAlone motion is restored with.
+
+    ``(profile_misfit / EP_PRIOR_MISFIT) ** 2`` within ``[1, EP_PRIOR_MAX_FACTOR]``: 1 up
+    to a misfit of 5%, 4 at 10%, the largest from 14% on, and the largest when the misfit
+    is not known (None: a motion file written without it).
+
+    Parameters
+    ----------
+    profile_misfit : float or None
+        The share of the edge profiles' energy the motion leaves unexplained
+        (:attr:`~.estimate.EstimateInfo.profile_misfit`), in [0, 1].
+
+    Returns
+    -------
+    float
+    """
+    if profile_misfit is None:
+        return EP_PRIOR_MAX_FACTOR
+    return float(min(max((profile_misfit / EP_PRIOR_MISFIT) ** 2, 1.0), EP_PRIOR_MAX_FACTOR))
+
+
+def restoring_params(image, method: str, deconvolution: str, deconv_params=None, *,
+                     profile_misfit: float | None = None) -> dict:
     """The deconvolution's parameters for restoring ``image`` with an estimate of ``method``.
 
-    ``deconv_params`` as given, except that an EpAlone motion is restored with the
-    hyper-Laplacian's prior weight never below the reference
-    (:data:`~.deconv.REFERENCE_LAMBDA_F`) when no weight is given: the weight set from a
-    clean photo's noise (:func:`~.deconv.noise_lambda_f`, down to 0.44x) assumes a
-    motion as close as Xu's and Xu+Ep's, and EpAlone's, from the edge profiles alone, is
-    rougher -- on ``levin``'s clean captures it rang more at that weight (26.82 -> 26.10
-    dB, 1 -> 5 captures below the blurred input), where Xu+Ep gained 0.33 dB
-    (``benchmarks/results/noise-weight.md``).
+    ``deconv_params`` as given, except that an EpAlone motion is restored with a stronger
+    hyper-Laplacian prior when no weight is given: the reference weight
+    (:data:`~.deconv.REFERENCE_LAMBDA_F`) or the one set from the photo's noise
+    (:func:`~.deconv.noise_lambda_f`), whichever is larger, times
+    :func:`ep_prior_factor` of the motion's profile misfit. The noise weight (down to
+    0.44x the reference on a clean photo) assumes a motion as close as Xu's and Xu+Ep's;
+    EpAlone's, from the edge profiles alone, is rougher, the more so the less the
+    profiles agree on it (:data:`EP_PRIOR_MISFIT`; ``benchmarks/results/ep-selfcheck.md``).
 
     Parameters
     ----------
@@ -106,6 +144,8 @@ def restoring_params(image, method: str, deconvolution: str, deconv_params=None)
         The method that estimated the motion (``estimate.info.method``).
     deconvolution : {"hyperlaplacian", "rl", "wiener"}
     deconv_params : dict, optional
+    profile_misfit : float, optional
+        The estimate's ``info.profile_misfit`` (EpAlone; None: not known).
 
     Returns
     -------
@@ -120,7 +160,8 @@ def restoring_params(image, method: str, deconvolution: str, deconv_params=None)
     params = dict(deconv_params or {})
     if (method == "ep" and deconvolution == "hyperlaplacian"
             and params.get("lambda_f") is None and "lam" not in params):
-        params["lambda_f"] = max(noise_lambda_f(image), REFERENCE_LAMBDA_F)
+        params["lambda_f"] = (max(noise_lambda_f(image), REFERENCE_LAMBDA_F)
+                              * ep_prior_factor(profile_misfit))
     return params
 
 

@@ -443,7 +443,8 @@ class CameraMotion:
         return CameraMotion(self.model, self.intrinsics, self.poses[keep], self.weights[keep])
 
     # -- files ---------------------------------------------------------------------------
-    def to_dict(self, *, estimated_by: str | None = None) -> dict:
+    def to_dict(self, *, estimated_by: str | None = None,
+                profile_misfit: float | None = None) -> dict:
         """The motion as the JSON-ready dict of the motion file (only non-zero weights).
 
         Parameters
@@ -454,6 +455,10 @@ class CameraMotion:
             restores an estimate of its method (:func:`~.deblur.restoring_params`).
             :meth:`from_dict` and :meth:`load` ignore the key; :meth:`load_estimate`
             reads it.
+        profile_misfit : float, optional
+            The share of the edge profiles' energy the motion leaves unexplained
+            (``estimate.info.profile_misfit``, in [0, 1]), kept for the same reason: an
+            EpAlone motion's restoration depends on it (:func:`~.deblur.ep_prior_factor`).
 
         Returns
         -------
@@ -470,6 +475,8 @@ class CameraMotion:
         }
         if estimated_by is not None:
             out["estimated_by"] = _check_estimator(estimated_by)
+        if profile_misfit is not None:
+            out["profile_misfit"] = _check_misfit(profile_misfit)
         return out
 
     @classmethod
@@ -510,7 +517,8 @@ class CameraMotion:
             raise ValueError("motion file has no poses")
         return cls(model, intrinsics, poses, weights)
 
-    def save(self, path, *, estimated_by: str | None = None) -> None:
+    def save(self, path, *, estimated_by: str | None = None,
+             profile_misfit: float | None = None) -> None:
         """Write the motion as JSON (the ``edgecme-motion`` format), atomically.
 
         Parameters
@@ -518,10 +526,13 @@ class CameraMotion:
         path : path-like
         estimated_by : {"ep", "xu", "xu+ep"}, optional
             The estimator that made the motion (:meth:`to_dict`).
+        profile_misfit : float, optional
+            Its edge profiles' misfit (:meth:`to_dict`).
         """
         from .io import write_json
 
-        write_json(path, self.to_dict(estimated_by=estimated_by), indent=1)
+        write_json(path, self.to_dict(estimated_by=estimated_by,
+                                      profile_misfit=profile_misfit), indent=1)
 
     @classmethod
     def load(cls, path) -> CameraMotion:
@@ -535,8 +546,8 @@ class CameraMotion:
         return read_json(path, "motion file", cls.from_dict)
 
     @classmethod
-    def load_estimate(cls, path) -> tuple[CameraMotion, str | None]:
-        """Read a motion file and the name of the estimator that made it.
+    def load_estimate(cls, path) -> tuple[CameraMotion, str | None, float | None]:
+        """Read a motion file, the name of the estimator that made it and its misfit.
 
         Parameters
         ----------
@@ -548,20 +559,23 @@ class CameraMotion:
         estimated_by : {"ep", "xu", "xu+ep"} or None
             None when the file names no estimator (a ground truth, a trajectory, a file
             written before the key existed, or ``null``).
+        profile_misfit : float or None
+            The edge profiles' misfit the file records (:meth:`to_dict`), or None.
 
         Raises
         ------
         ValueError
             One line: the motion is malformed (as :meth:`load`), or the file names an
-            estimator this program does not know -- it would steer the restoration, so it
-            is not guessed.
+            estimator this program does not know or a misfit outside [0, 1] -- either
+            would steer the restoration, so neither is guessed.
         """
         from .io import read_json
 
         def parse(data):
             motion = cls.from_dict(data)
-            by = data.get("estimated_by")
-            return motion, None if by is None else _check_estimator(by, "motion file's ")
+            by, misfit = data.get("estimated_by"), data.get("profile_misfit")
+            return (motion, None if by is None else _check_estimator(by, "motion file's "),
+                    None if misfit is None else _check_misfit(misfit, "motion file's "))
 
         return read_json(path, "motion file", parse)
 
@@ -588,6 +602,14 @@ def _check_estimator(name, where: str = "") -> str:
     from .estimate import METHODS
 
     return check_choice(name, f"{where}estimated_by", METHODS)
+
+
+def _check_misfit(value, where: str = "") -> float:
+    """``value`` as a float if it is a share in [0, 1], else one ``ValueError`` line."""
+    number = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool)
+    if not (number and 0.0 <= float(value) <= 1.0):
+        raise ValueError(f"{where}profile_misfit must be a number in [0, 1]; got {value!r}")
+    return float(value)
 
 
 def _check_points(points) -> np.ndarray:
