@@ -456,3 +456,37 @@ def test_gradient_sparsity_is_lower_for_the_sharp_image_than_for_blur_or_ringing
     assert estimate.gradient_sparsity(3.0 * case.sharp + 1.0, band) == pytest.approx(sharp)
     assert np.isnan(estimate.gradient_sparsity(np.ones((20, 20)), 2))
     assert np.isnan(estimate.gradient_sparsity(case.sharp, min(case.sharp.shape) // 2))
+
+
+def test_after_a_restart_epalone_reports_and_gates_the_misfit_of_the_estimate_it_keeps(
+        monkeypatch):
+    """After a collapse to no blur EpAlone restarts from a wide motion; when it keeps the
+    restart's estimate, the misfit it reports (which sets the restoration's prior) and
+    gates is that estimate's, not the collapsed one's. A collapse is forced here by
+    counting every estimate narrower than 100 px as collapsed (on this case the restart's
+    estimate is the wider one, and is kept), and the restart's pass is made to report a
+    misfit 0.05 higher than it found, so that the two cannot be confused."""
+    case, _ = _shaken("rotation", 11, 4)
+    focal = case.motion.intrinsics.focal_px
+    seen = []
+    iterate = estimate._CoarseToFine.iterate
+
+    def spy(self, *args, **kwargs):  # the misfit of every pass, as it ends
+        out = yield from iterate(self, *args, **kwargs)
+        if kwargs.get("wide_start"):
+            self.profile_misfit += 0.05
+        seen.append(self.profile_misfit)
+        return out
+
+    monkeypatch.setattr(estimate._CoarseToFine, "iterate", spy)
+    monkeypatch.setattr(estimate, "COLLAPSE_EXTENT", 100.0)
+    with pytest.warns(UserWarning, match="no blur found"):  # the forced collapse, again
+        est = estimate_motion(case.blurred, "ep", "rotation", 13, focal, rng=0)
+    assert est.info.restarts == 1 and est.info.start == "wide"
+    assert len(seen) == 3  # steps, soft edges, the restart
+    first = seen[int(est.info.edge_spread > 0)]
+    assert est.info.profile_misfit == seen[-1] > first + 0.04
+    monkeypatch.setattr(estimate, "EP_MAX_MISFIT", (first + seen[-1]) / 2)
+    seen.clear()
+    with pytest.raises(ValueError, match="do not agree on one camera motion"):
+        estimate_motion(case.blurred, "ep", "rotation", 13, focal, rng=0)

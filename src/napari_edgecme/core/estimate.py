@@ -495,12 +495,8 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 total += sum(level_iters)
                 run, step = yield from _soft_edges(run, info, step, total)
                 motion = run.motion
-        if method == "ep" and info.profile_misfit > EP_MAX_MISFIT:
-            raise ValueError(
-                f"EpAlone: the {len(work_profiles)} edge profiles do not agree on one camera "
-                f"motion ({info.profile_misfit:.0%} of their energy is left unexplained by "
-                f"the best one; at most {EP_MAX_MISFIT:.0%} is accepted); try method "
-                "'xu+ep', which also uses the image")
+        if method == "ep":
+            _check_ep_misfit(info, len(work_profiles))
         # -- the wide start (Xu, Xu+Ep): the alternation again from a wide motion, with a
         # stronger L0 weight; after a collapse to no blur every method restarts so
         extent = motion.max_displacement()
@@ -522,6 +518,9 @@ def iter_estimate_motion(image, method: str = "xu+ep", model: str = "rotation",
                 if again.max_displacement() > extent:
                     motion, latent = again, again_latent
                     info.start = "wide"
+                    if method == "ep":  # the misfit of the estimate kept, and its gate
+                        info.profile_misfit = wide.profile_misfit
+                        _check_ep_misfit(info, len(work_profiles))
             elif again.max_displacement() >= COLLAPSE_EXTENT:
                 # both are blurs: keep the sparser latent's
                 sparsity, both, step, total = yield from _polish_candidates(
@@ -730,6 +729,17 @@ class _CoarseToFine:
             self.finest = level
         return self.motion, self.latent, step
 
+
+
+def _check_ep_misfit(info: EstimateInfo, n_profiles: int) -> None:
+    """EpAlone's self-check: refuse, in one line, an estimate that leaves more than
+    :data:`~.profile_fit.EP_MAX_MISFIT` of the profiles' energy unexplained."""
+    if info.profile_misfit > EP_MAX_MISFIT:
+        raise ValueError(
+            f"EpAlone: the {n_profiles} edge profiles do not agree on one camera "
+            f"motion ({info.profile_misfit:.0%} of their energy is left unexplained by "
+            f"the best one; at most {EP_MAX_MISFIT:.0%} is accepted); try method "
+            "'xu+ep', which also uses the image")
 
 
 def _soft_edges(run: _CoarseToFine, info: EstimateInfo, step: int, total: int):
