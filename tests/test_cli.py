@@ -19,6 +19,7 @@ import pytest
 
 from napari_edgecme.cli import ProgressBar, main
 from napari_edgecme.core import synth
+from napari_edgecme.core.deblur import ep_prior_factor
 from napari_edgecme.core.edges import EdgeProfiles
 from napari_edgecme.core.io import read_image, write_image
 from napari_edgecme.core.metrics import aligned_psnr
@@ -313,8 +314,10 @@ def test_deconvolve_restores_an_epalone_motion_file_as_deblur_restores_epalone(t
                               *extra], capsys)
         assert status == 0, err
         outputs[name] = (tmp_path / f"{name}.png").read_bytes()
-        if name.startswith("ep"):
-            assert "estimated by ep" in err[-1]
+        if name.startswith("ep"):  # and the summary says why the output is softer
+            assert "estimated by ep, EpAlone prior " + {
+                "ep4": "1.0x (profile misfit 4%)", "ep10": "4.0x (profile misfit 10%)",
+                "ep": "8.0x (profile misfit not recorded)"}[name] in err[-1]
     assert outputs["ep4"] == outputs["reference"]
     assert outputs["ep10"] == outputs["4x"]
     assert outputs["ep"] == outputs["8x"]
@@ -908,3 +911,24 @@ def test_the_summary_says_which_profile_model_epalone_kept():
     xu = EstimateInfo("xu", "inplane", 9.0, 77.0, 1.0, converged=True)
     assert "fitted as" not in estimate_summary(MotionEstimate(motion, None, None, xu), "xu",
                                                9.0, "default")
+
+
+def test_deconvolve_of_a_saved_epalone_motion_gives_the_bytes_deblur_gave(tmp_path, capsys):
+    """``deblur --save-motion`` with EpAlone, then ``deconvolve --motion`` of that file:
+    the same restoration, since the file keeps the estimator and its profile misfit (the
+    EpAlone prior, which both summaries state)."""
+    case = synth.make_case(synth.sample_image("edges", 128), "inplane", 5, 0.01, rng=3)
+    write_image(tmp_path / "b.png", case.blurred)
+    status, _, err = run(["deblur", tmp_path / "b.png", "-o", tmp_path / "d.png",
+                          "--save-motion", tmp_path / "m.json", "--method", "ep",
+                          "--model", "inplane", "--max-blur", "8", *FAST], capsys)
+    assert status == 0, err
+    _, estimated_by, misfit = CameraMotion.load_estimate(tmp_path / "m.json")
+    assert estimated_by == "ep" and 0 <= misfit <= 0.2
+    prior = f"EpAlone prior {ep_prior_factor(misfit):.1f}x (profile misfit {misfit:.0%})"
+    assert prior in err[-1]
+    status, _, err = run(["deconvolve", tmp_path / "b.png", "--motion", tmp_path / "m.json",
+                          "-o", tmp_path / "c.png"], capsys)
+    assert status == 0, err
+    assert prior in err[-1]
+    assert (tmp_path / "c.png").read_bytes() == (tmp_path / "d.png").read_bytes()

@@ -231,7 +231,9 @@ def test_the_polish_grows_a_too_small_estimate_towards_the_true_size(seed):
     case, truth, small, polished, latent, work = _polish_the_shrunk_truth(seed)
     assert _extent_ratio(small, truth) == pytest.approx(0.8, abs=0.02)
     assert _mass_radius_ratio(small, truth) == pytest.approx(0.8, abs=0.02)
-    assert _extent_ratio(polished, truth) >= 0.9  # the support reaches the truth's size
+    # the support reaches the truth's size; its light ends may reach past it (1.30 on
+    # seed 0), not far past
+    assert 0.9 <= _extent_ratio(polished, truth) <= 1.4
     # the weight grows towards the truth's spread, and not past it
     assert _mass_radius_ratio(small, truth) + 0.05 <= _mass_radius_ratio(polished, truth) <= 1.1
     assert motion_psf_ncc(polished, case.motion) >= motion_psf_ncc(small, case.motion) + 0.05

@@ -365,3 +365,32 @@ def test_a_motion_is_restored_as_deblur_restores_an_estimate_of_its_method(
         assert seen["lambda_f"] >= deconv.REFERENCE_LAMBDA_F
     else:  # the weight from the photo's noise, set by the engine
         assert seen["lambda_f"] is None
+
+
+@pytest.mark.parametrize("from_file", [False, True])
+def test_a_deblurred_layer_carries_its_motions_estimate_to_the_next_restoration(
+        setup, tmp_path, wait_for_run, monkeypatch, from_file):
+    """The deblurred layer keeps the estimate summary of the motion it was restored with
+    (a layer's, or a motion file's estimator and misfit), so that choosing it as the
+    motion source restores as ``deblur`` restores that estimate: here EpAlone's stronger
+    prior for a misfit of 12%."""
+    from napari_edgecme.core.deblur import restoring_params
+
+    s = setup
+    if from_file:
+        path = tmp_path / "motion.json"
+        s.widget.fitted_motion().motion.save(path, estimated_by="ep", profile_misfit=0.12)
+        s.widget.load_motion(path)
+    else:
+        s.image.metadata = {**s.image.metadata, "edgecme_estimate": {
+            "method": "ep", "profile_misfit": 0.12}}
+    first = _parameters_of_a_run(s.widget, wait_for_run, monkeypatch)
+    deblurred = s.widget.last_layer
+    assert deblurred.metadata["edgecme_estimate"]["method"] == "ep"
+    assert deblurred.metadata["edgecme_estimate"]["profile_misfit"] == 0.12
+    s.widget.reset_choices()
+    s.widget.motion_combo.value = deblurred
+    again = _parameters_of_a_run(s.widget, wait_for_run, monkeypatch)
+    expected = restoring_params(s.original, "ep", "hyperlaplacian", {"lambda_f": None},
+                                profile_misfit=0.12)["lambda_f"]
+    assert first["lambda_f"] == again["lambda_f"] == expected

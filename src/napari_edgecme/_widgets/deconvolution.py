@@ -412,18 +412,25 @@ class DeconvolutionWidget(QWidget):
         """The curve the chosen motion was estimated with, when its layer says."""
         return self._motion_estimate("gamma")
 
-    def _motion_estimate(self, key: str):
-        """An entry of the chosen motion layer's estimate summary (None when unknown); of a
-        motion read from a file, only its "method" and "profile_misfit" (the file's
-        ``estimated_by`` and ``profile_misfit``)."""
+    def _motion_summary(self) -> dict | None:
+        """The chosen motion's estimate summary, None when unknown: its layer's (written by
+        the camera-motion widget, and carried on to the layers deblurred with it), or of a
+        motion read from a file that names its estimator, the file's ``estimated_by`` and
+        ``profile_misfit`` as "method" and "profile_misfit"."""
         source = self.motion_combo.value
-        if not isinstance(source, Layer):
-            file = self._file_motion
-            if file is not None and source is file[1]:
-                return {"method": file[2], "profile_misfit": file[3]}.get(key)
-            return None
-        summary = source.metadata.get(ESTIMATE_KEY)
-        return summary.get(key) if isinstance(summary, dict) else None
+        if isinstance(source, Layer):
+            summary = source.metadata.get(ESTIMATE_KEY)
+            return summary if isinstance(summary, dict) else None
+        file = self._file_motion
+        if file is not None and source is file[1] and file[2] is not None:
+            return {"method": file[2], "profile_misfit": file[3]}
+        return None
+
+    def _motion_estimate(self, key: str):
+        """An entry of the chosen motion's estimate summary (:meth:`_motion_summary`), or
+        None."""
+        summary = self._motion_summary()
+        return None if summary is None else summary.get(key)
 
     def _gamma_name(self) -> str | None:
         try:
@@ -498,7 +505,7 @@ class DeconvolutionWidget(QWidget):
             profile_misfit=misfit if isinstance(misfit, float) else None, **params)
         settings = {"method": method, **params, "gamma": curve.name, "gamma_reason": reason}
         self.runner.start(gen, on_result=partial(self._show_result, image, fit.motion,
-                                                 settings))
+                                                 settings, self._motion_summary()))
 
     def cancel(self) -> None:
         """Stop the running deconvolution (nothing is added)."""
@@ -506,14 +513,15 @@ class DeconvolutionWidget(QWidget):
 
     # -- main-thread handler -----------------------------------------------------------------
     def _show_result(self, image: Image, motion: CameraMotion, settings: dict,
-                     restored: np.ndarray) -> str:
+                     summary: dict | None, restored: np.ndarray) -> str:
         restored = np.asarray(restored, dtype=np.float32)
         rgb = restored.ndim == 3
         extra = {} if rgb else {"colormap": image.colormap.name}
+        metadata = {MOTION_KEY: motion.to_dict(), SOURCE_KEY: image.name, DECONV_KEY: settings}
+        if summary is not None:  # the motion's estimate, for a restoration from this layer
+            metadata[ESTIMATE_KEY] = dict(summary)
         layer = Image(restored, name=f"{image.name} deblurred", rgb=rgb,
-                      contrast_limits=(0.0, 1.0),
-                      metadata={MOTION_KEY: motion.to_dict(), SOURCE_KEY: image.name,
-                                DECONV_KEY: settings},
+                      contrast_limits=(0.0, 1.0), metadata=metadata,
                       **extra, **spatial_kwargs(image))
         self._viewer.add_layer(layer)
         self.last_layer = layer

@@ -14,7 +14,7 @@ from pathlib import Path
 from ..core import deconv as _deconv
 from ..core import estimate as _estimate
 from ..core import io as _io
-from ..core.deblur import record_gamma, restoring_params
+from ..core.deblur import ep_prior_factor, record_gamma, restoring_params
 from ..core.motion import CameraMotion
 from ..core.photometry import Gamma, decide_gamma, parse_gamma
 from ._console import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, CLIError, _Console, _UsageError
@@ -74,6 +74,19 @@ def _estimate_motion(args, console: _Console, image, path: Path, curve=None, rea
     result = console.run(gen)
     record_gamma(result.info, curve, reason)
     return result, max_blur, focal_source
+
+
+def ep_prior_note(method: str | None, deconvolution: str, params: dict,
+                  profile_misfit: float | None) -> str:
+    """``", EpAlone prior 4.0x (profile misfit 10%)"`` when the restoration of a motion
+    of ``method`` raises the prior's weight for it (:func:`~.deblur.restoring_params`:
+    EpAlone, hyper-Laplacian, no weight given), else ``""``: why the output is softer."""
+    if (method != "ep" or deconvolution != "hyperlaplacian"
+            or params.get("lambda_f") is not None or "lam" in params):
+        return ""
+    misfit = ("profile misfit not recorded" if profile_misfit is None
+              else f"profile misfit {profile_misfit:.0%}")
+    return f", EpAlone prior {ep_prior_factor(profile_misfit):.1f}x ({misfit})"
 
 
 def estimate_summary(result, requested: str, max_blur: float, focal_source: str) -> str:
@@ -169,8 +182,10 @@ def cmd_deblur(args, console: _Console) -> int:
                                profile_misfit=result.info.profile_misfit)
     wrote = ", ".join(str(p) for _, p in outputs)
     colour = _deconv.color_description(image.shape, args.deconvolution, params)
+    prior = ep_prior_note(result.info.method, args.deconvolution, params,
+                          result.info.profile_misfit)
     done = ("not deconvolved" if result.info.no_blur else
-            f"deconvolved ({args.deconvolution}{', ' + colour if colour else ''}) in "
+            f"deconvolved ({args.deconvolution}{', ' + colour if colour else ''}{prior}) in "
             f"{seconds:.1f} s")
     console.info(f"{estimate_summary(result, args.method, max_blur, source)}; {done}; "
                  f"wrote {wrote}")
@@ -232,6 +247,7 @@ def cmd_deconvolve(args, console: _Console) -> int:
     motion, estimated_by, misfit = CameraMotion.load_estimate(motion_path)
     image = read_input_image(path, console)
     work, curve, reason = linear_input(args, image, path)
+    prior = ep_prior_note(estimated_by, args.method, params, misfit)
     if estimated_by is not None:  # restored as 'deblur' restores an estimate of its method
         params = restoring_params(work, estimated_by, args.method, params,
                                   profile_misfit=misfit)
@@ -243,7 +259,7 @@ def cmd_deconvolve(args, console: _Console) -> int:
     with _writing(args.output) as (tmp,):
         _io.write_image(tmp, restored, bits=output_bits(image))
     colour = _deconv.color_description(image.shape, args.method, params)
-    by = f", estimated by {estimated_by}" if estimated_by is not None else ""
+    by = f", estimated by {estimated_by}{prior}" if estimated_by is not None else ""
     console.info(f"deconvolved {path} ({args.method}, {colour + ', ' if colour else ''}"
                  f"{_describe(motion)}{by}) in {seconds:.1f} s;"
                  f" {gamma_note(curve, reason)}; wrote {args.output}")

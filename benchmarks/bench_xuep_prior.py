@@ -1,0 +1,131 @@
+"""Xu+Ep's restoration and its edge profiles: does the estimate's profile misfit say how
+strong the deconvolution's prior should be, as it does for EpAlone?
+
+EpAlone's motion is restored with a prior weight that grows with the share of the edge
+profiles' energy the estimate leaves unexplained (``deblur.ep_prior_factor``,
+``benchmarks/results/ep-selfcheck.md``). Xu+Ep's estimate can be checked against the
+same profiles. For every case of a suite (``lai``: told the max blur and the true focal
+length, model ``rotation``; ``levin``: told the kernel's size, model ``translation``;
+seed 0) Xu+Ep runs as shipped; the photo's edge profiles (extracted as the estimator
+extracts them) are compared with the estimate's projections, as ideal steps and with a
+1 px edge spread (the lower misfit is kept); the estimate is restored at 0.5, 1, 2 and 4
+times the shipped weight (``deconv.noise_lambda_f``) and scored as the suites score.
+
+    python benchmarks/bench_xuep_prior.py {lai,levin} [--quick] [--jobs 2] [--out ROWS.jsonl]
+    python benchmarks/bench_xuep_prior.py {lai,levin} --rows ROWS.jsonl   # table only
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from napari_edgecme._report import markdown_table
+from napari_edgecme._suites import default_data_dir, lai_cases, lai_load
+from napari_edgecme._suites._data import levin_cases, levin_load, levin_max_blur
+
+FACTORS = (0.5, 1.0, 2.0, 4.0)
+MISFIT_BINS = (0.0, 0.05, 0.08, 0.12, 0.2, 1.0)
+
+
+def run_case(case: dict, suite: str) -> dict:
+    """Xu+Ep on one case; its profile misfit and its restorations (in a worker)."""
+    from napari_edgecme.core.deconv import deconvolve, noise_lambda_f
+    from napari_edgecme.core.edges import extract_edge_profiles
+    from napari_edgecme.core.estimate import estimate_motion
+    from napari_edgecme.core.measurement import measurement_matrix, profile_misfit
+    from napari_edgecme.core.metrics import aligned_scores, motion_psf_ncc
+    from napari_edgecme.core.photometry import to_luminance
+
+    if suite == "lai":
+        blurred, sharp, truth = lai_load(case)
+        model, max_blur, focal, rotation = ("rotation", case["max_blur"],
+                                            truth.intrinsics.focal_px, True)
+    else:
+        blurred, sharp, truth = levin_load(case)
+        model, max_blur, focal, rotation = "translation", levin_max_blur(truth), None, False
+    row = {"name": case["name"], "category": case["category"],
+           "blurred": aligned_scores(blurred, sharp, rotation=rotation)[0]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = estimate_motion(blurred, "xu+ep", model, max_blur, focal, rng=0)
+    motion = est.motion
+    profiles = extract_edge_profiles(to_luminance(blurred), max_blur, rng=0)
+    misfits = {}
+    if len(profiles):
+        energy = (np.asarray(profiles.derivatives, np.float64) ** 2).sum(1)
+        for spread in (0.0, 1.0):
+            matrix = measurement_matrix(profiles, motion.model, motion.intrinsics,
+                                        motion.poses, edge_spread=spread)
+            each = profile_misfit(matrix, profiles, motion.weights)
+            misfits[f"{spread:g}"] = float(np.sum(each * energy) / energy.sum())
+    weight = noise_lambda_f(blurred)
+    psnr = {f"{f:g}": aligned_scores(deconvolve(blurred, motion, "hyperlaplacian",
+                                                 lambda_f=weight * f), sharp,
+                                      rotation=rotation)[0] for f in FACTORS}
+    return {**row, "method_run": est.info.method, "n_profiles": len(profiles),
+            "misfit": min(misfits.values()) if misfits else None, "misfits": misfits,
+            "ncc": motion_psf_ncc(motion, truth), "psnr": psnr}
+
+
+def table(rows: list[dict]) -> str:
+    """Mean gain over the blurred input per misfit bin (rows) and weight factor."""
+    head = ["estimate's profile misfit", "cases"] + [f"{f:g}x" for f in FACTORS]
+    body = []
+    for lo, hi in itertools.pairwise(MISFIT_BINS):
+        sel = [r for r in rows if r["misfit"] is not None and lo <= r["misfit"] < hi]
+        if sel:
+            body.append([f"{lo:.0%}-{hi:.0%}", str(len(sel))] + [
+                f"{np.mean([r['psnr'][f'{f:g}'] - r['blurred'] for r in sel]):+.2f}"
+                for f in FACTORS])
+    body.append(["all", str(len(rows))] + [
+        f"{np.mean([r['psnr'][f'{f:g}'] - r['blurred'] for r in rows]):+.2f}"
+        for f in FACTORS])
+    return markdown_table(head, body)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("suite", choices=["lai", "levin"])
+    parser.add_argument("--data", default=None, help="the suite's folder")
+    parser.add_argument("--quick", action="store_true", help="lai: the 20 cases of quick.txt")
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--out", default=None, help="write one JSON row per case here")
+    parser.add_argument("--rows", default=None, help="tabulate these rows instead of running")
+    args = parser.parse_args(argv)
+    if args.rows:
+        rows = [json.loads(line) for line in Path(args.rows).read_text().splitlines()]
+    else:
+        data = Path(args.data) if args.data else default_data_dir(args.suite)
+        if data is None or not data.is_dir():
+            parser.error(f"no {args.suite} data: pass --data DIR")
+        cases = (lai_cases(data, args.quick) if args.suite == "lai"
+                 else levin_cases(data, False))
+        rows = []
+        out = open(args.out, "w") if args.out else None
+        try:
+            with ProcessPoolExecutor(max(1, args.jobs)) as pool:
+                for row in pool.map(run_case, cases, [args.suite] * len(cases)):
+                    rows.append(row)
+                    if out:
+                        out.write(json.dumps(row) + "\n")
+                        out.flush()
+                    print(row["name"], file=sys.stderr, flush=True)
+        finally:
+            if out:
+                out.close()
+    print(f"{args.suite}: {len(rows)} cases (mean gain of Xu+Ep over the blurred input, dB, "
+          "by the estimate's profile misfit and the restoration's weight)\n")
+    print(table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
