@@ -916,7 +916,10 @@ def test_the_summary_says_which_profile_model_epalone_kept():
 def test_deconvolve_of_a_saved_epalone_motion_gives_the_bytes_deblur_gave(tmp_path, capsys):
     """``deblur --save-motion`` with EpAlone, then ``deconvolve --motion`` of that file:
     the same restoration, since the file keeps the estimator and its profile misfit (the
-    EpAlone prior, which both summaries state)."""
+    EpAlone prior, which both summaries state), and the restoration ``deconvolve`` gives
+    the motion at that prior's weight by hand."""
+    from napari_edgecme.core.deconv import REFERENCE_LAMBDA_F, noise_lambda_f
+
     case = synth.make_case(synth.sample_image("edges", 128), "inplane", 5, 0.01, rng=3)
     write_image(tmp_path / "b.png", case.blurred)
     status, _, err = run(["deblur", tmp_path / "b.png", "-o", tmp_path / "d.png",
@@ -932,3 +935,11 @@ def test_deconvolve_of_a_saved_epalone_motion_gives_the_bytes_deblur_gave(tmp_pa
     assert status == 0, err
     assert prior in err[-1]
     assert (tmp_path / "c.png").read_bytes() == (tmp_path / "d.png").read_bytes()
+    weight = (max(noise_lambda_f(read_image(tmp_path / "b.png")), REFERENCE_LAMBDA_F)
+              * ep_prior_factor(misfit))
+    CameraMotion.load(tmp_path / "m.json").save(tmp_path / "plain.json")
+    status, _, err = run(["deconvolve", tmp_path / "b.png", "--motion", tmp_path / "plain.json",
+                          "-o", tmp_path / "h.png", "--lam", repr(2 / weight)], capsys)
+    assert status == 0, err
+    by_hand = read_image(tmp_path / "h.png").astype(float)  # --lam rounds through 2 / L
+    assert np.abs(by_hand - read_image(tmp_path / "d.png")).max() <= 1

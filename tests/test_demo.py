@@ -55,9 +55,9 @@ def test_demo_runs_in_reduced_mode_and_reports_the_table(demo_run):
                 out / f"motion-{key.replace('+', '-')}.json")
             assert motion.image_shape == (128, 128)
             assert estimated_by == row["method_run"] in (key, "xu")  # Xu+Ep may run as Xu
-            # the profiles' misfit, which sets an EpAlone motion's restoration
-            assert misfit == row["profile_misfit"]
-            assert (misfit is not None) == (estimated_by == "ep" or key != "xu")
+            # the profiles' misfit, which sets an EpAlone motion's restoration (both
+            # methods fit the profiles: Xu+Ep for its gate)
+            assert misfit == row["profile_misfit"] is not None
 
 
 def test_demo_writes_readable_images_and_figures_and_only_its_own_files(demo_run):

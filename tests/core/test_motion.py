@@ -152,20 +152,25 @@ def test_a_motion_file_names_the_estimator_that_made_it(tmp_path, cam, method):
 def test_a_motion_file_keeps_the_profile_misfit_of_its_estimate(tmp_path, cam):
     """``profile_misfit`` (the share of the edge profiles' energy the estimate leaves
     unexplained, which sets an EpAlone motion's restoration) is written when given and
-    read back; a misfit outside [0, 1] is refused in one line, on writing and reading."""
+    read back, above 1 too (profiles a motion does not explain at all); a misfit that is
+    not a finite number >= 0 is refused in one line, on writing and reading."""
     m = CameraMotion("translation", cam, [[0, 0], [1, 0]], [1, 1])
     m.save(tmp_path / "m.json", estimated_by="ep", profile_misfit=0.137)
     assert json.loads((tmp_path / "m.json").read_text())["profile_misfit"] == 0.137
     assert CameraMotion.load_estimate(tmp_path / "m.json") == (m, "ep", 0.137)
-    with pytest.raises(ValueError, match=r"^profile_misfit must be a number in \[0, 1\]; "
-                                         r"got 1\.5$"):
-        m.save(tmp_path / "bad.json", profile_misfit=1.5)
+    m.save(tmp_path / "far.json", estimated_by="xu+ep", profile_misfit=1.5)
+    assert CameraMotion.load_estimate(tmp_path / "far.json") == (m, "xu+ep", 1.5)
+    with pytest.raises(ValueError, match=r"^profile_misfit must be a finite number >= 0; "
+                                         r"got -0\.5$"):
+        m.save(tmp_path / "bad.json", profile_misfit=-0.5)
+    with pytest.raises(ValueError, match=r"^profile_misfit must be a finite number >= 0"):
+        m.save(tmp_path / "bad.json", profile_misfit=float("inf"))
     assert not (tmp_path / "bad.json").exists()
     for bad in ("0.1", True, -0.01):
         path = tmp_path / "bad.json"
         path.write_text(json.dumps({**GOOD, "profile_misfit": bad}))
         with pytest.raises(ValueError, match=r"motion file's profile_misfit must be a "
-                                             r"number in \[0, 1\]") as info:
+                                             r"finite number >= 0") as info:
             CameraMotion.load_estimate(path)
         assert "\n" not in str(info.value)
         assert CameraMotion.load(path).n_poses >= 1  # the motion itself reads as ever

@@ -361,7 +361,7 @@ def test_a_motion_is_restored_as_deblur_restores_an_estimate_of_its_method(
     expected = restoring_params(s.original, estimated_by or "xu", "hyperlaplacian",
                                 {"lambda_f": None}, profile_misfit=0.08)
     assert seen["lambda_f"] == expected["lambda_f"]
-    if estimated_by == "ep":  # EpAlone's floor: never below the reference weight
+    if estimated_by == "ep":  # EpAlone's prior: never below the reference weight
         assert seen["lambda_f"] >= deconv.REFERENCE_LAMBDA_F
     else:  # the weight from the photo's noise, set by the engine
         assert seen["lambda_f"] is None
@@ -385,6 +385,7 @@ def test_a_deblurred_layer_carries_its_motions_estimate_to_the_next_restoration(
         s.image.metadata = {**s.image.metadata, "edgecme_estimate": {
             "method": "ep", "profile_misfit": 0.12}}
     first = _parameters_of_a_run(s.widget, wait_for_run, monkeypatch)
+    assert "EpAlone prior 5.8x (profile misfit 12%)" in s.widget.status.text()
     deblurred = s.widget.last_layer
     assert deblurred.metadata["edgecme_estimate"]["method"] == "ep"
     assert deblurred.metadata["edgecme_estimate"]["profile_misfit"] == 0.12

@@ -49,6 +49,7 @@ from qtpy.QtWidgets import (
 )
 
 from ..core._validation import first_line
+from ..core.deblur import ep_prior_note
 from ..core.deconv import DEFAULTS, HALF_CHROMA_PIXELS
 from ..core.estimate import METHODS as ESTIMATION_METHODS
 from ..core.motion import CameraMotion
@@ -247,7 +248,9 @@ class DeconvolutionWidget(QWidget):
         self.lambda_f.setToolTip("How smooth the result is (weight λ_f of the gradient prior, "
                                  "as in the estimation, images in [0, 1]). auto: set from "
                                  "the photo's noise (2/1500 at 2/255 noise, less on clean "
-                                 "photos); lower it for a sharper, noisier result")
+                                 "photos; an EpAlone motion at least 2/1500, up to 8x that as "
+                                 "its edge profiles disagree with it); lower it for a "
+                                 "sharper, noisier result")
         self.alpha_combo = ComboBox(choices=[("2/3", 2.0 / 3.0), ("1/2", 0.5)],
                                     value=hl["alpha"])
         self.alpha_combo.native.setToolTip("How strongly small gradients are flattened "
@@ -525,7 +528,12 @@ class DeconvolutionWidget(QWidget):
                       **extra, **spatial_kwargs(image))
         self._viewer.add_layer(layer)
         self.last_layer = layer
+        summary = summary or {}
+        misfit = summary.get("profile_misfit")
+        added = f"added {layer.name!r}" + ep_prior_note(
+            summary.get("method"), settings["method"], settings,
+            misfit if isinstance(misfit, float) else None)
         if settings["gamma"] == "linear" and settings["gamma_reason"] == GIVEN:
-            return f"added {layer.name!r}"
-        return (f"added {layer.name!r}, encoded as the input; "
+            return added
+        return (f"{added}, encoded as the input; "
                 f"{gamma_note(settings['gamma'], settings['gamma_reason'])}")

@@ -14,7 +14,7 @@ from pathlib import Path
 from ..core import deconv as _deconv
 from ..core import estimate as _estimate
 from ..core import io as _io
-from ..core.deblur import ep_prior_factor, record_gamma, restoring_params
+from ..core.deblur import ep_prior_note, record_gamma, restoring_params
 from ..core.motion import CameraMotion
 from ..core.photometry import Gamma, decide_gamma, parse_gamma
 from ._console import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, CLIError, _Console, _UsageError
@@ -74,19 +74,6 @@ def _estimate_motion(args, console: _Console, image, path: Path, curve=None, rea
     result = console.run(gen)
     record_gamma(result.info, curve, reason)
     return result, max_blur, focal_source
-
-
-def ep_prior_note(method: str | None, deconvolution: str, params: dict,
-                  profile_misfit: float | None) -> str:
-    """``", EpAlone prior 4.0x (profile misfit 10%)"`` when the restoration of a motion
-    of ``method`` raises the prior's weight for it (:func:`~.deblur.restoring_params`:
-    EpAlone, hyper-Laplacian, no weight given), else ``""``: why the output is softer."""
-    if (method != "ep" or deconvolution != "hyperlaplacian"
-            or params.get("lambda_f") is not None or "lam" in params):
-        return ""
-    misfit = ("profile misfit not recorded" if profile_misfit is None
-              else f"profile misfit {profile_misfit:.0%}")
-    return f", EpAlone prior {ep_prior_factor(profile_misfit):.1f}x ({misfit})"
 
 
 def estimate_summary(result, requested: str, max_blur: float, focal_source: str) -> str:

@@ -119,7 +119,9 @@ def _add_deconvolution(parser) -> None:
                             f"{2 / _deconv.REFERENCE_LAMBDA_F:g} at "
                             f"{_deconv.REFERENCE_NOISE * 255:g}/255 and up to "
                             f"{2 / _deconv.lambda_f_for_noise(0.0):.0f} on a clean photo; "
-                            "higher for a sharper, noisier result)")
+                            "an EpAlone motion at most the first, divided by up to 8 as its "
+                            "edge profiles disagree with it; higher for a sharper, noisier "
+                            "result)")
     group.add_argument("--iterations", type=_number(int), metavar="N",
                        help=f"rl: Richardson-Lucy iterations (default {d['rl']['iterations']})")
     group.add_argument("--nsr", type=_number(), metavar="R",

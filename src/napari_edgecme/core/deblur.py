@@ -6,8 +6,8 @@ resolution (:func:`~.deconv.deconvolve`). The CLI's ``edgecme deblur`` and the b
 runner take the same two steps with their own progress and reporting, the demo and the
 widgets take them one at a time; every one of them restores an estimate with the
 parameters :func:`restoring_params` sets for its method (and so do ``edgecme
-deconvolve`` and the deconvolution widget with a motion file that names its estimator,
-``estimated_by``). With ``gamma`` other than
+deconvolve`` and the deconvolution widget with a motion file that names its estimator
+and its profile misfit, ``estimated_by`` and ``profile_misfit``). With ``gamma`` other than
 linear, both run in linear light: the input is linearised first and the restored image
 re-encoded as the input was (:mod:`.photometry`).
 """
@@ -19,7 +19,7 @@ from .estimate import estimate_motion
 from .photometry import decide_gamma, parse_gamma
 
 __all__ = ["EP_PRIOR_MAX_FACTOR", "EP_PRIOR_MISFIT", "deblur", "ep_prior_factor",
-           "record_gamma", "restoring_params"]
+           "ep_prior_note", "record_gamma", "restoring_params"]
 
 #: An EpAlone motion is restored with the hyper-Laplacian's prior weight times
 #: ``(profile_misfit / EP_PRIOR_MISFIT) ** 2`` (:func:`ep_prior_factor`): the share of the
@@ -30,7 +30,7 @@ __all__ = ["EP_PRIOR_MAX_FACTOR", "EP_PRIOR_MISFIT", "deblur", "ep_prior_factor"
 #: 13 of 22 ``lai`` cases; with the factor none of the 56 cases under 20% does, and the
 #: ``levin`` captures gain 3.4 dB instead of 3.0.
 EP_PRIOR_MISFIT = 0.05
-#: The largest factor :func:`ep_prior_factor` gives (a motion of 14% misfit or more), and
+#: The largest factor :func:`ep_prior_factor` gives (a misfit of about 14.1% or more), and
 #: the factor of an EpAlone motion whose misfit is not known.
 EP_PRIOR_MAX_FACTOR = 8.0
 
@@ -105,7 +105,7 @@ def ep_prior_factor(profile_misfit: float | None) -> float:
     """How much stronger than the reference prior an EpAlone motion is restored with.
 
     ``(profile_misfit / EP_PRIOR_MISFIT) ** 2`` within ``[1, EP_PRIOR_MAX_FACTOR]``: 1 up
-    to a misfit of 5%, 4 at 10%, the largest from 14% on, and the largest when the misfit
+    to a misfit of 5%, 4 at 10%, the largest from about 14.1% on, and the largest when the misfit
     is not known (None: a motion file written without it).
 
     Parameters
@@ -121,6 +121,19 @@ def ep_prior_factor(profile_misfit: float | None) -> float:
     if profile_misfit is None:
         return EP_PRIOR_MAX_FACTOR
     return float(min(max((profile_misfit / EP_PRIOR_MISFIT) ** 2, 1.0), EP_PRIOR_MAX_FACTOR))
+
+
+def ep_prior_note(method: str | None, deconvolution: str, params: dict,
+                  profile_misfit: float | None) -> str:
+    """``", EpAlone prior 4.0x (profile misfit 10%)"`` when the restoration of a motion
+    of ``method`` raises the prior's weight for it (:func:`restoring_params`:
+    EpAlone, hyper-Laplacian, no weight given), else ``""``: why the output is softer."""
+    if (method != "ep" or deconvolution != "hyperlaplacian"
+            or params.get("lambda_f") is not None or "lam" in params):
+        return ""
+    misfit = ("profile misfit not recorded" if profile_misfit is None
+              else f"profile misfit {profile_misfit:.0%}")
+    return f", EpAlone prior {ep_prior_factor(profile_misfit):.1f}x ({misfit})"
 
 
 def restoring_params(image, method: str, deconvolution: str, deconv_params=None, *,

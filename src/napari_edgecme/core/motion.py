@@ -456,9 +456,10 @@ class CameraMotion:
             :meth:`from_dict` and :meth:`load` ignore the key; :meth:`load_estimate`
             reads it.
         profile_misfit : float, optional
-            The share of the edge profiles' energy the motion leaves unexplained
-            (``estimate.info.profile_misfit``, in [0, 1]), kept for the same reason: an
-            EpAlone motion's restoration depends on it (:func:`~.deblur.ep_prior_factor`).
+            ``estimate.info.profile_misfit``, kept for the same reason: an EpAlone
+            motion's restoration depends on it (:func:`~.deblur.ep_prior_factor`). For
+            EpAlone, the share of the edge profiles' energy the motion leaves
+            unexplained; for Xu+Ep, that of the EpAlone fit of its gate (not used).
 
         Returns
         -------
@@ -566,7 +567,8 @@ class CameraMotion:
         ------
         ValueError
             One line: the motion is malformed (as :meth:`load`), or the file names an
-            estimator this program does not know or a misfit outside [0, 1] -- either
+            estimator this program does not know or a misfit that is not a finite
+            number >= 0 -- either
             would steer the restoration, so neither is guessed.
         """
         from .io import read_json
@@ -605,10 +607,13 @@ def _check_estimator(name, where: str = "") -> str:
 
 
 def _check_misfit(value, where: str = "") -> float:
-    """``value`` as a float if it is a share in [0, 1], else one ``ValueError`` line."""
+    """``value`` as a float if it is a finite number >= 0 (a share of the profiles'
+    energy, 1 or more for profiles a motion does not explain at all), else one
+    ``ValueError`` line."""
     number = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool)
-    if not (number and 0.0 <= float(value) <= 1.0):
-        raise ValueError(f"{where}profile_misfit must be a number in [0, 1]; got {value!r}")
+    if not (number and math.isfinite(float(value)) and float(value) >= 0.0):
+        raise ValueError(f"{where}profile_misfit must be a finite number >= 0; "
+                         f"got {value!r}")
     return float(value)
 
 
