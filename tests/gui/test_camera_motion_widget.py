@@ -276,7 +276,9 @@ def test_a_sharp_image_reads_no_blur_found_in_the_status(qtbot, viewer_model, ed
 
 
 def test_an_epalone_run_says_which_profile_model_it_kept(qtbot, viewer_model, edge_case,
-                                                         wait_for_run):
+                                                         wait_for_run, tmp_path):
+    """... and records its profile misfit (which sets its restoration's prior) on the
+    layer and in the motion file it saves."""
     image = viewer_model.add_image(edge_case.blurred, name="shaken")
     widget = make_widget(qtbot, viewer_model, image, method="ep")
     widget.run_button.click()
@@ -287,3 +289,7 @@ def test_an_epalone_run_says_which_profile_model_it_kept(qtbot, viewer_model, ed
     said = ("fitted as soft edges (1 px spread)" if summary["edge_spread"] > 0
             else "fitted as step edges")
     assert said in widget.status.text()
+    misfit = widget.last_estimate.info.profile_misfit
+    assert summary["profile_misfit"] == misfit and 0 <= misfit <= 0.2
+    _, estimated_by, saved = CameraMotion.load_estimate(widget.save_motion(tmp_path / "m.json"))
+    assert (estimated_by, saved) == ("ep", misfit)
