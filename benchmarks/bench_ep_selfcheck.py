@@ -31,19 +31,14 @@ for ``levin`` on 2 cores.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import sys
 import warnings
-from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 import numpy as np
 
 from napari_edgecme._report import markdown_table
-from napari_edgecme._suites import default_data_dir, lai_cases, lai_load
-from napari_edgecme._suites._data import levin_cases, levin_load, levin_max_blur
+from napari_edgecme._suites._study import load_study_case, study_main
 
 MISFIT_GATES = (0.12, 0.14, 0.16, 0.20, math.inf)
 SPARSITY_GATES = (math.inf, 1.0, 0.97, 0.95, 0.93, 0.9)
@@ -60,13 +55,7 @@ def run_case(case: dict, suite: str) -> dict:
     from napari_edgecme.core.photometry import to_luminance
 
     estimate.EP_MAX_MISFIT = math.inf
-    if suite == "lai":
-        blurred, sharp, truth = lai_load(case)
-        model, max_blur, focal, rotation = ("rotation", case["max_blur"],
-                                            truth.intrinsics.focal_px, True)
-    else:
-        blurred, sharp, truth = levin_load(case)
-        model, max_blur, focal, rotation = "translation", levin_max_blur(truth), None, False
+    blurred, sharp, truth, model, max_blur, focal, rotation = load_study_case(case, suite)
     gray = to_luminance(blurred)
     row = {"name": case["name"], "category": case["category"],
            "blurred": aligned_scores(blurred, sharp, rotation=rotation)[0]}
@@ -136,41 +125,13 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("suite", choices=["lai", "levin"])
-    parser.add_argument("--data", default=None, help="the suite's folder")
-    parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--out", default=None, help="write one JSON row per case here")
-    parser.add_argument("--rows", default=None, help="tabulate these rows instead of running")
-    args = parser.parse_args(argv)
-    if args.rows:
-        rows = [json.loads(line) for line in Path(args.rows).read_text().splitlines()]
-    else:
-        data = Path(args.data) if args.data else default_data_dir(args.suite)
-        if data is None or not data.is_dir():
-            parser.error(f"no {args.suite} data: pass --data DIR")
-        cases = (lai_cases(data, False) if args.suite == "lai"
-                 else levin_cases(data, False))
-        rows = []
-        out = open(args.out, "w") if args.out else None
-        try:
-            with ProcessPoolExecutor(max(1, args.jobs)) as pool:
-                for row in pool.map(run_case, cases, [args.suite] * len(cases)):
-                    rows.append(row)
-                    if out:
-                        out.write(json.dumps(row) + "\n")
-                        out.flush()
-                    print(row["name"], row.get("error", ""), file=sys.stderr, flush=True)
-        finally:
-            if out:
-                out.close()
-    print(f"{args.suite}: {sum('psnr' in r for r in rows)} of {len(rows)} cases estimated "
-          "(cells: cases run, mean gain over the blurred input where run (dB), cases more "
-          "than 0.5 dB below)\n")
-    print(table(rows))
-    print()
-    print(prior_table(rows))
-    return 0
+    def tabulate(rows, args):
+        return (f"{args.suite}: {sum('psnr' in r for r in rows)} of {len(rows)} cases "
+                "estimated (cells: cases run, mean gain over the blurred input where run "
+                "(dB), cases more than 0.5 dB below)\n\n"
+                f"{table(rows)}\n\n{prior_table(rows)}")
+
+    return study_main(__doc__, run_case, tabulate, argv)
 
 
 if __name__ == "__main__":

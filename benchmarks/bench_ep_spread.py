@@ -36,19 +36,14 @@ about 15 min for ``lai`` and 3 min for ``levin`` on 2 cores.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import sys
 import warnings
-from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 import numpy as np
 
 from napari_edgecme._report import markdown_table
-from napari_edgecme._suites import default_data_dir, lai_cases, lai_load
-from napari_edgecme._suites._data import levin_cases, levin_load, levin_max_blur
+from napari_edgecme._suites._study import load_study_case, study_main
 
 SPREADS = (0.0, 0.5, 1.0, 1.5, 2.0)
 #: EpAlone's misfit gate when the study was made (``profile_fit.EP_MAX_MISFIT`` then)
@@ -65,13 +60,7 @@ def run_case(case: dict, suite: str, spreads=SPREADS) -> dict:
 
     estimate.EP_MAX_MISFIT = math.inf
     estimate.EP_SPREAD_TOLERANCE = math.inf  # the soft fit is kept whatever its misfit
-    if suite == "lai":
-        blurred, sharp, truth = lai_load(case)
-        model, max_blur, focal, rotation = ("rotation", case["max_blur"],
-                                            truth.intrinsics.focal_px, True)
-    else:
-        blurred, sharp, truth = levin_load(case)
-        model, max_blur, focal, rotation = "translation", levin_max_blur(truth), None, False
+    blurred, sharp, truth, model, max_blur, focal, rotation = load_study_case(case, suite)
     gray = to_luminance(blurred)
     row = {"name": case["name"], "category": case["category"],
            "blurred": aligned_scores(blurred, sharp, rotation=rotation)[0], "fits": []}
@@ -174,41 +163,17 @@ def table(rows: list[dict], weight: float) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("suite", choices=["lai", "levin"])
-    parser.add_argument("--data", default=None, help="the suite's folder")
-    parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--out", default=None, help="write one JSON row per case here")
-    parser.add_argument("--rows", default=None, help="tabulate these rows instead of running")
-    parser.add_argument("--weight", type=float, default=0.3,
-                        help="weight of the log residual in the criterion (default 0.3)")
-    args = parser.parse_args(argv)
-    if args.rows:
-        rows = [json.loads(line) for line in Path(args.rows).read_text().splitlines()]
-    else:
-        data = Path(args.data) if args.data else default_data_dir(args.suite)
-        if data is None or not data.is_dir():
-            parser.error(f"no {args.suite} data: pass --data DIR")
-        cases = (lai_cases(data, False) if args.suite == "lai"
-                 else levin_cases(data, False))
-        rows = []
-        out = open(args.out, "w") if args.out else None
-        try:
-            with ProcessPoolExecutor(max(1, args.jobs)) as pool:
-                for row in pool.map(run_case, cases, [args.suite] * len(cases)):
-                    rows.append(row)
-                    if out:
-                        out.write(json.dumps(row) + "\n")
-                        out.flush()
-                    print(row["name"], row.get("error", ""), file=sys.stderr, flush=True)
-        finally:
-            if out:
-                out.close()
-    ran = sum(bool(r.get("fits")) for r in rows)
-    print(f"{args.suite}: {ran} of {len(rows)} cases with every fit (cells: cases run, "
-          "mean gain over the blurred input where run (dB), cases more than 0.5 dB below)\n")
-    print(table(rows, args.weight))
-    return 0
+    def tabulate(rows, args):
+        ran = sum(bool(r.get("fits")) for r in rows)
+        return (f"{args.suite}: {ran} of {len(rows)} cases with every fit (cells: cases run, "
+                "mean gain over the blurred input where run (dB), cases more than 0.5 dB "
+                f"below)\n\n{table(rows, args.weight)}")
+
+    def weight_option(parser):
+        parser.add_argument("--weight", type=float, default=0.3,
+                            help="weight of the log residual in the criterion (default 0.3)")
+
+    return study_main(__doc__, run_case, tabulate, argv, weight_option)
 
 
 if __name__ == "__main__":

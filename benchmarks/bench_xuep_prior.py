@@ -17,19 +17,14 @@ times the shipped weight (``deconv.noise_lambda_f``) and scored as the suites sc
 
 from __future__ import annotations
 
-import argparse
 import itertools
-import json
 import sys
 import warnings
-from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 import numpy as np
 
 from napari_edgecme._report import markdown_table
-from napari_edgecme._suites import default_data_dir, lai_cases, lai_load
-from napari_edgecme._suites._data import levin_cases, levin_load, levin_max_blur
+from napari_edgecme._suites._study import load_study_case, study_main
 
 FACTORS = (0.5, 1.0, 2.0, 4.0)
 MISFIT_BINS = (0.0, 0.05, 0.08, 0.12, 0.2, 1.0)
@@ -44,13 +39,7 @@ def run_case(case: dict, suite: str) -> dict:
     from napari_edgecme.core.metrics import aligned_scores, motion_psf_ncc
     from napari_edgecme.core.photometry import to_luminance
 
-    if suite == "lai":
-        blurred, sharp, truth = lai_load(case)
-        model, max_blur, focal, rotation = ("rotation", case["max_blur"],
-                                            truth.intrinsics.focal_px, True)
-    else:
-        blurred, sharp, truth = levin_load(case)
-        model, max_blur, focal, rotation = "translation", levin_max_blur(truth), None, False
+    blurred, sharp, truth, model, max_blur, focal, rotation = load_study_case(case, suite)
     row = {"name": case["name"], "category": case["category"],
            "blurred": aligned_scores(blurred, sharp, rotation=rotation)[0]}
     with warnings.catch_warnings():
@@ -92,39 +81,12 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("suite", choices=["lai", "levin"])
-    parser.add_argument("--data", default=None, help="the suite's folder")
-    parser.add_argument("--quick", action="store_true", help="lai: the 20 cases of quick.txt")
-    parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--out", default=None, help="write one JSON row per case here")
-    parser.add_argument("--rows", default=None, help="tabulate these rows instead of running")
-    args = parser.parse_args(argv)
-    if args.rows:
-        rows = [json.loads(line) for line in Path(args.rows).read_text().splitlines()]
-    else:
-        data = Path(args.data) if args.data else default_data_dir(args.suite)
-        if data is None or not data.is_dir():
-            parser.error(f"no {args.suite} data: pass --data DIR")
-        cases = (lai_cases(data, args.quick) if args.suite == "lai"
-                 else levin_cases(data, False))
-        rows = []
-        out = open(args.out, "w") if args.out else None
-        try:
-            with ProcessPoolExecutor(max(1, args.jobs)) as pool:
-                for row in pool.map(run_case, cases, [args.suite] * len(cases)):
-                    rows.append(row)
-                    if out:
-                        out.write(json.dumps(row) + "\n")
-                        out.flush()
-                    print(row["name"], file=sys.stderr, flush=True)
-        finally:
-            if out:
-                out.close()
-    print(f"{args.suite}: {len(rows)} cases (mean gain of Xu+Ep over the blurred input, dB, "
-          "by the estimate's profile misfit and the restoration's weight)\n")
-    print(table(rows))
-    return 0
+    def tabulate(rows, args):
+        return (f"{args.suite}: {len(rows)} cases (mean gain of Xu+Ep over the blurred "
+                "input, dB, by the estimate's profile misfit and the restoration's weight)"
+                f"\n\n{table(rows)}")
+
+    return study_main(__doc__, run_case, tabulate, argv)
 
 
 if __name__ == "__main__":
