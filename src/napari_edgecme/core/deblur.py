@@ -112,7 +112,7 @@ def ep_prior_factor(profile_misfit: float | None) -> float:
     ----------
     profile_misfit : float or None
         The share of the edge profiles' energy the motion leaves unexplained
-        (:attr:`~.estimate.EstimateInfo.profile_misfit`), in [0, 1].
+        (:attr:`~.estimate.EstimateInfo.profile_misfit`), >= 0.
 
     Returns
     -------
@@ -146,8 +146,10 @@ def restoring_params(image, method: str, deconvolution: str, deconv_params=None,
     (:func:`~.deconv.noise_lambda_f`), whichever is larger, times
     :func:`ep_prior_factor` of the motion's profile misfit. The noise weight (down to
     0.44x the reference on a clean photo) assumes a motion as close as Xu's and Xu+Ep's;
-    EpAlone's, from the edge profiles alone, is rougher, the more so the less the
-    profiles agree on it (:data:`EP_PRIOR_MISFIT`; ``benchmarks/results/ep-selfcheck.md``).
+    EpAlone's, from the edge profiles alone, is rougher (on ``levin``'s clean captures it
+    rang more at that weight, ``benchmarks/results/noise-weight.md``), the more so the
+    less the profiles agree on it (:data:`EP_PRIOR_MISFIT`;
+    ``benchmarks/results/ep-selfcheck.md``).
 
     Parameters
     ----------

@@ -221,8 +221,9 @@ class EstimateInfo:
     blind_cost: float | None = None
     identity_cost: float | None = None
     #: EpAlone: the share of the edge profiles' energy the estimate leaves unexplained
-    #: (Eq. 16; :meth:`~.profile_fit.RobustProfileFit.relative_misfit`); Xu+Ep: that of
-    #: the EpAlone check on its profiles (:data:`XU_EP_GATE`)
+    #: (Eq. 16; :meth:`~.profile_fit.RobustProfileFit.relative_misfit`), which sets the
+    #: prior its motion is restored with (:func:`~.deblur.ep_prior_factor`); Xu+Ep: that
+    #: of the EpAlone check on its profiles (:data:`XU_EP_GATE`)
     profile_misfit: float | None = None
     #: the start of the estimate kept, "blob" (the small blob of
     #: :func:`~.pyramid.initial_weights`), "wide" (the wide motion of :data:`WIDE_START`),
