@@ -50,6 +50,7 @@ def run_case(case: dict, suite: str) -> dict:
     """EpAlone on one case with its misfit gate lifted: a row of scores (in a worker)."""
     from napari_edgecme.core import estimate
     from napari_edgecme.core.deconv import REFERENCE_LAMBDA_F, deconvolve, noise_lambda_f
+    from napari_edgecme.core.measurement import measurement_matrix, profile_misfit
     from napari_edgecme.core.metrics import aligned_scores, motion_psf_ncc
     from napari_edgecme.core.operators import blur
     from napari_edgecme.core.photometry import to_luminance
@@ -66,6 +67,10 @@ def run_case(case: dict, suite: str) -> dict:
     except ValueError as exc:  # too few profiles, or nearly parallel normals
         return {**row, "error": str(exc).splitlines()[0][:200]}
     motion = est.motion
+    prof = est.profiles
+    each = profile_misfit(measurement_matrix(prof, motion.model, motion.intrinsics,
+                                             motion.poses, edge_spread=est.info.edge_spread),
+                          prof, motion.weights)
     band = estimate.interior_band(gray.shape, motion, truth)
     inner = (slice(band, -band), slice(band, -band))
     former = max(noise_lambda_f(blurred), REFERENCE_LAMBDA_F)  # before the misfit factor
@@ -84,7 +89,12 @@ def run_case(case: dict, suite: str) -> dict:
             "truth_sparsity": estimate.gradient_sparsity(truth_latent, band),
             "log_residual": math.log(float(np.mean(residual ** 2))),
             "extent_ratio": motion.blur_extent() / truth.blur_extent(),
-            "psnr_prior_factor": stronger}
+            "psnr_prior_factor": stronger,
+            # how the misfit spreads over the profiles (candidate confidence measures)
+            "profile_misfits": {"median": float(np.median(each)),
+                                "q25": float(np.quantile(each, 0.25)),
+                                "share_under_0.1": float(np.mean(each < 0.1)),
+                                "share_over_0.5": float(np.mean(each > 0.5))}}
 
 
 def _cell(gains) -> str:
