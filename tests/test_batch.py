@@ -350,3 +350,22 @@ def test_local_cluster_size_one_worker_per_core_within_memory():
     assert batch.local_cluster_size(cores=2, memory=24 * 2**30) == (2, 1, 12 * 2**30)
     assert batch.local_cluster_size(cores=8, memory=4 * 2**30)[0] == 2
     assert batch.local_cluster_size(cores=4, memory=2**30)[0] == 1
+
+
+def test_an_epalone_photo_says_the_prior_it_was_restored_with(tmp_path):
+    """As ``edgecme deblur`` does: the log line of a photo deblurred by EpAlone names the
+    prior its misfit set, and its motion file keeps the misfit."""
+    from napari_edgecme.core.deblur import ep_prior_factor
+    from napari_edgecme.core.motion import CameraMotion
+
+    case = synth.make_case(synth.sample_image("edges", 128), "inplane", 5, 0.01, rng=3)
+    write_image(tmp_path / "e.png", case.blurred)
+    lines = []
+    result = batch.deblur_many([tmp_path / "e.png"], tmp_path / "out", method="ep",
+                               model="inplane", max_blur=8, workers=1, rng=0, n_iter=2,
+                               log=lines.append)
+    assert result.ok and result.counts == {"done": 1}
+    _, estimated_by, misfit = CameraMotion.load_estimate(tmp_path / "out" / "e.png.motion.json")
+    assert estimated_by == "ep" and misfit is not None
+    assert lines[-1].endswith(f"; EpAlone prior {ep_prior_factor(misfit):.1f}x "
+                              f"(profile misfit {misfit:.0%})")

@@ -18,6 +18,7 @@ from ..cli._files import output_bits, read_input_image
 from ..cli._options import deconvolution_params
 from ..core import io as _io
 from ..core._validation import first_line
+from ..core.deblur import ep_prior_note
 from ._report import DONE, FAILED, NO_BLUR
 
 __all__ = ["THUMB_SIDE", "deblur_photo"]
@@ -96,9 +97,9 @@ def deblur_photo(name: str, data: bytes, options: argparse.Namespace) -> dict:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 image = read_input_image(src, console)
+                params = deconvolution_params(options, options.deconvolution)
                 restored, result, max_blur, source, _ = deblur_image(
-                    options, console, image, src,
-                    deconvolution_params(options, options.deconvolution))
+                    options, console, image, src, params)
                 encoded = folder / ("restored" + Path(name).suffix)
                 _io.write_image(encoded, restored, bits=output_bits(image))
                 result.motion.save(folder / "motion.json", estimated_by=result.info.method,
@@ -107,12 +108,15 @@ def deblur_photo(name: str, data: bytes, options: argparse.Namespace) -> dict:
                 _io.write_image(folder / "after.png", _thumbnail(restored))
                 _io.write_image(folder / "psf.png", _psf_thumbnail(result.motion))
             info = result.info
+            prior = ep_prior_note(info.method, options.deconvolution, params,
+                                  info.profile_misfit)
             row.update(
                 status=NO_BLUR if info.no_blur else DONE,
                 method=info.method,
                 blur_extent_px=round(float(result.motion.blur_extent()), 2),
                 profiles=info.n_profiles,
-                summary=own(estimate_summary(result, options.method, max_blur, source)),
+                summary=own(estimate_summary(result, options.method, max_blur, source)
+                            + (f"; {prior.removeprefix(', ')}" if prior else "")),
                 files={role: (folder / file).read_bytes() for role, file in (
                     ("output", encoded.name), ("before", "before.png"),
                     ("after", "after.png"), ("psf", "psf.png"), ("motion", "motion.json"))})
