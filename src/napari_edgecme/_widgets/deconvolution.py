@@ -212,8 +212,7 @@ class DeconvolutionWidget(QWidget):
         super().__init__(parent)
         self._viewer = viewer
         #: a motion read from a file: its name, the motion, and the estimator that made it
-        #: (None when the file does not say)
-        # (file name, motion, estimated_by, profile_misfit)
+        #: and its profile misfit (each None when the file does not say)
         self._file_motion: tuple[str, CameraMotion, str | None, float | None] | None = None
         self.last_layer: Image | None = None
 
@@ -503,12 +502,14 @@ class DeconvolutionWidget(QWidget):
         if estimated_by not in ESTIMATION_METHODS:
             estimated_by = None
         misfit = self._motion_estimate("profile_misfit")
-        gen = deconvolve_in_linear_light(
-            data, curve, fit.motion, method, estimated_by=estimated_by,
-            profile_misfit=misfit if isinstance(misfit, float) else None, **params)
+        misfit = misfit if isinstance(misfit, float) else None
+        gen = deconvolve_in_linear_light(data, curve, fit.motion, method,
+                                         estimated_by=estimated_by, profile_misfit=misfit,
+                                         **params)
         settings = {"method": method, **params, "gamma": curve.name, "gamma_reason": reason}
+        prior = ep_prior_note(estimated_by, method, params, misfit)
         self.runner.start(gen, on_result=partial(self._show_result, image, fit.motion,
-                                                 settings, self._motion_summary()))
+                                                 settings, self._motion_summary(), prior))
 
     def cancel(self) -> None:
         """Stop the running deconvolution (nothing is added)."""
@@ -516,7 +517,7 @@ class DeconvolutionWidget(QWidget):
 
     # -- main-thread handler -----------------------------------------------------------------
     def _show_result(self, image: Image, motion: CameraMotion, settings: dict,
-                     summary: dict | None, restored: np.ndarray) -> str:
+                     summary: dict | None, prior: str, restored: np.ndarray) -> str:
         restored = np.asarray(restored, dtype=np.float32)
         rgb = restored.ndim == 3
         extra = {} if rgb else {"colormap": image.colormap.name}
@@ -528,11 +529,7 @@ class DeconvolutionWidget(QWidget):
                       **extra, **spatial_kwargs(image))
         self._viewer.add_layer(layer)
         self.last_layer = layer
-        summary = summary or {}
-        misfit = summary.get("profile_misfit")
-        added = f"added {layer.name!r}" + ep_prior_note(
-            summary.get("method"), settings["method"], settings,
-            misfit if isinstance(misfit, float) else None)
+        added = f"added {layer.name!r}" + (f", {prior}" if prior else "")
         if settings["gamma"] == "linear" and settings["gamma_reason"] == GIVEN:
             return added
         return (f"{added}, encoded as the input; "

@@ -116,7 +116,7 @@ def deblur_photo(name: str, data: bytes, options: argparse.Namespace) -> dict:
                 blur_extent_px=round(float(result.motion.blur_extent()), 2),
                 profiles=info.n_profiles,
                 summary=own(estimate_summary(result, options.method, max_blur, source)
-                            + (f"; {prior.removeprefix(', ')}" if prior else "")),
+                            + (f"; {prior}" if prior else "")),
                 files={role: (folder / file).read_bytes() for role, file in (
                     ("output", encoded.name), ("before", "before.png"),
                     ("after", "after.png"), ("psf", "psf.png"), ("motion", "motion.json"))})

@@ -169,11 +169,10 @@ def cmd_deblur(args, console: _Console) -> int:
                                profile_misfit=result.info.profile_misfit)
     wrote = ", ".join(str(p) for _, p in outputs)
     colour = _deconv.color_description(image.shape, args.deconvolution, params)
-    prior = ep_prior_note(result.info.method, args.deconvolution, params,
-                          result.info.profile_misfit)
+    details = [args.deconvolution, colour, ep_prior_note(
+        result.info.method, args.deconvolution, params, result.info.profile_misfit)]
     done = ("not deconvolved" if result.info.no_blur else
-            f"deconvolved ({args.deconvolution}{', ' + colour if colour else ''}{prior}) in "
-            f"{seconds:.1f} s")
+            f"deconvolved ({', '.join(d for d in details if d)}) in {seconds:.1f} s")
     console.info(f"{estimate_summary(result, args.method, max_blur, source)}; {done}; "
                  f"wrote {wrote}")
     return EXIT_OK
@@ -246,7 +245,8 @@ def cmd_deconvolve(args, console: _Console) -> int:
     with _writing(args.output) as (tmp,):
         _io.write_image(tmp, restored, bits=output_bits(image))
     colour = _deconv.color_description(image.shape, args.method, params)
-    by = f", estimated by {estimated_by}{prior}" if estimated_by is not None else ""
+    by = (f", estimated by {estimated_by}{', ' + prior if prior else ''}"
+          if estimated_by is not None else "")
     console.info(f"deconvolved {path} ({args.method}, {colour + ', ' if colour else ''}"
                  f"{_describe(motion)}{by}) in {seconds:.1f} s;"
                  f" {gamma_note(curve, reason)}; wrote {args.output}")

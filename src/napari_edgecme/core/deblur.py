@@ -123,17 +123,23 @@ def ep_prior_factor(profile_misfit: float | None) -> float:
     return float(min(max((profile_misfit / EP_PRIOR_MISFIT) ** 2, 1.0), EP_PRIOR_MAX_FACTOR))
 
 
+def _ep_prior_applies(method: str | None, deconvolution: str, params: dict) -> bool:
+    """Whether :func:`restoring_params` sets the prior's weight for a motion of ``method``:
+    EpAlone, hyper-Laplacian, and no weight given."""
+    return (method == "ep" and deconvolution == "hyperlaplacian"
+            and params.get("lambda_f") is None and "lam" not in params)
+
+
 def ep_prior_note(method: str | None, deconvolution: str, params: dict,
                   profile_misfit: float | None) -> str:
-    """``", EpAlone prior 4.0x (profile misfit 10%)"`` when the restoration of a motion
-    of ``method`` raises the prior's weight for it (:func:`restoring_params`:
-    EpAlone, hyper-Laplacian, no weight given), else ``""``: why the output is softer."""
-    if (method != "ep" or deconvolution != "hyperlaplacian"
-            or params.get("lambda_f") is not None or "lam" in params):
+    """``"EpAlone prior 4.0x (profile misfit 10%)"`` when the restoration of a motion of
+    ``method`` raises the prior's weight for it (:func:`restoring_params`: EpAlone,
+    hyper-Laplacian, no weight given), else ``""``: why the output is softer."""
+    if not _ep_prior_applies(method, deconvolution, params):
         return ""
     misfit = ("profile misfit not recorded" if profile_misfit is None
               else f"profile misfit {profile_misfit:.0%}")
-    return f", EpAlone prior {ep_prior_factor(profile_misfit):.1f}x ({misfit})"
+    return f"EpAlone prior {ep_prior_factor(profile_misfit):.1f}x ({misfit})"
 
 
 def restoring_params(image, method: str, deconvolution: str, deconv_params=None, *,
@@ -173,8 +179,7 @@ def restoring_params(image, method: str, deconvolution: str, deconv_params=None,
     method = check_choice(method, "method", METHODS)
     deconvolution = check_choice(deconvolution, "deconvolution", DECONV_METHODS)
     params = dict(deconv_params or {})
-    if (method == "ep" and deconvolution == "hyperlaplacian"
-            and params.get("lambda_f") is None and "lam" not in params):
+    if _ep_prior_applies(method, deconvolution, params):
         params["lambda_f"] = (max(noise_lambda_f(image), REFERENCE_LAMBDA_F)
                               * ep_prior_factor(profile_misfit))
     return params
