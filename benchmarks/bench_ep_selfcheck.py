@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 import sys
-import warnings
 
 import numpy as np
 
@@ -56,14 +55,12 @@ def run_case(case: dict, suite: str) -> dict:
     from napari_edgecme.core.photometry import to_luminance
 
     estimate.EP_MAX_MISFIT = math.inf
-    blurred, sharp, truth, model, max_blur, focal, rotation = load_study_case(case, suite)
+    study = load_study_case(case, suite)
+    blurred, sharp, truth, rotation = study.blurred, study.sharp, study.truth, study.rotation
     gray = to_luminance(blurred)
-    row = {"name": case["name"], "category": case["category"],
-           "blurred": aligned_scores(blurred, sharp, rotation=rotation)[0]}
+    row = study.row(case)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            est = estimate.estimate_motion(blurred, "ep", model, max_blur, focal, rng=0)
+        est = study.estimate("ep")
     except ValueError as exc:  # too few profiles, or nearly parallel normals
         return {**row, "error": str(exc).splitlines()[0][:200]}
     motion = est.motion

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import math
 import sys
-import warnings
 
 import numpy as np
 
@@ -60,17 +59,15 @@ def run_case(case: dict, suite: str, spreads=SPREADS) -> dict:
 
     estimate.EP_MAX_MISFIT = math.inf
     estimate.EP_SPREAD_TOLERANCE = math.inf  # the soft fit is kept whatever its misfit
-    blurred, sharp, truth, model, max_blur, focal, rotation = load_study_case(case, suite)
+    study = load_study_case(case, suite)
+    blurred, sharp, truth, rotation = study.blurred, study.sharp, study.truth, study.rotation
     gray = to_luminance(blurred)
-    row = {"name": case["name"], "category": case["category"],
-           "blurred": aligned_scores(blurred, sharp, rotation=rotation)[0], "fits": []}
+    row = {**study.row(case), "fits": []}
     estimates = []
     for spread in spreads:
         estimate.EP_EDGE_SPREAD = spread  # 0: the step model only
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                est = estimate.estimate_motion(blurred, "ep", model, max_blur, focal, rng=0)
+            est = study.estimate("ep")
         except ValueError as exc:  # too few profiles, or nearly parallel normals
             return {**row, "error": str(exc).splitlines()[0][:200]}
         estimates.append((spread, est))

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import itertools
 import sys
-import warnings
 
 import numpy as np
 
@@ -34,17 +33,15 @@ def run_case(case: dict, suite: str) -> dict:
     """Xu+Ep on one case; its profile misfit and its restorations (in a worker)."""
     from napari_edgecme.core.deconv import deconvolve, noise_lambda_f
     from napari_edgecme.core.edges import extract_edge_profiles
-    from napari_edgecme.core.estimate import estimate_motion
     from napari_edgecme.core.measurement import measurement_matrix, profile_misfit
     from napari_edgecme.core.metrics import aligned_scores, motion_psf_ncc
     from napari_edgecme.core.photometry import to_luminance
 
-    blurred, sharp, truth, model, max_blur, focal, rotation = load_study_case(case, suite)
-    row = {"name": case["name"], "category": case["category"],
-           "blurred": aligned_scores(blurred, sharp, rotation=rotation)[0]}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        est = estimate_motion(blurred, "xu+ep", model, max_blur, focal, rng=0)
+    study = load_study_case(case, suite)
+    blurred, sharp, truth, rotation = study.blurred, study.sharp, study.truth, study.rotation
+    max_blur = study.max_blur
+    row = study.row(case)
+    est = study.estimate("xu+ep")
     motion = est.motion
     profiles = extract_edge_profiles(to_luminance(blurred), max_blur, rng=0)
     misfits = {}

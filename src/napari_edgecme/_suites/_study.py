@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
@@ -33,6 +34,24 @@ class StudyCase(NamedTuple):
     max_blur: float
     focal_px: float | None
     rotation: bool
+
+    def row(self, case: dict) -> dict:
+        """The start of the case's row: its name, category and the blurred input's
+        aligned PSNR (dB), scored as the suites score."""
+        from ..core.metrics import aligned_scores
+
+        return {"name": case["name"], "category": case["category"],
+                "blurred": aligned_scores(self.blurred, self.sharp, rotation=self.rotation)[0]}
+
+    def estimate(self, method: str):
+        """``estimate_motion`` of ``method`` told what the suites tell it, seed 0, its
+        warnings silenced; a refusal raises its ``ValueError``."""
+        from ..core import estimate
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return estimate.estimate_motion(self.blurred, method, self.model, self.max_blur,
+                                            self.focal_px, rng=0)
 
 
 def load_study_case(case: dict, suite: str) -> StudyCase:
