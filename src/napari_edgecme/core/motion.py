@@ -568,8 +568,7 @@ class CameraMotion:
         ValueError
             One line: the motion is malformed (as :meth:`load`), or the file names an
             estimator this program does not know or a misfit that is not a finite
-            number >= 0 -- either
-            would steer the restoration, so neither is guessed.
+            number >= 0 -- either would steer the restoration, so neither is guessed.
         """
         from .io import read_json
 
