@@ -15,8 +15,9 @@ does, then runs EpAlone, with its misfit gate lifted, twice on the same edges:
 
 Each estimate is restored as the engine restores it (``deblur.restoring_params``, with
 its profile misfit) and scored as the suites score (aligned PSNR, with in-plane rotation
-on ``lai``; PSF NCC; blur extent over the truth's). A profile is counted *false* when its
-derivative leaves more than 30% of its energy unexplained by the true projection.
+on ``lai``; PSF NCC; blur extent over the truth's). A profile is counted *false* when it
+is not faithful as the suites count it: its derivative correlates under
+``FAITHFUL_NCC`` (0.8) with the true projection (``metrics.profile_fidelity``).
 
 The table groups the cases by shake (``lai``) or kernel (``levin``): cases run under the
 shipped gate (``profile_fit.EP_MAX_MISFIT``), mean gain over the blurred input where run,
@@ -33,32 +34,24 @@ from __future__ import annotations
 import copy
 import math
 import sys
-import warnings
 from collections import defaultdict
 
 import numpy as np
 
 from napari_edgecme._report import markdown_table
+from napari_edgecme._suites import FAITHFUL_NCC
 from napari_edgecme._suites._study import load_study_case, study_main
 from napari_edgecme.core.profile_fit import EP_MAX_MISFIT
-
-#: A profile whose derivative leaves more than this share of its energy unexplained by
-#: the true projection is counted false.
-FALSE_MISFIT = 0.3
 
 
 def _estimate_and_score(study, profiles) -> dict:
     """EpAlone on ``profiles`` (gate lifted), restored as the engine restores: scores."""
-    from napari_edgecme.core import estimate
     from napari_edgecme.core.deblur import restoring_params
     from napari_edgecme.core.deconv import deconvolve
     from napari_edgecme.core.metrics import aligned_scores, motion_psf_ncc
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            est = estimate.estimate_motion(study.blurred, "ep", study.model, study.max_blur,
-                                           study.focal_px, profiles=profiles, rng=0)
+        est = study.estimate("ep", profiles)
     except ValueError as exc:  # nearly parallel normals
         return {"error": str(exc).splitlines()[0][:200]}
     misfit = est.info.profile_misfit
@@ -73,7 +66,7 @@ def run_case(case: dict, suite: str) -> dict:
     """One case: the profiles' fidelity, and EpAlone on measured and true profiles."""
     from napari_edgecme.core import estimate
     from napari_edgecme.core.edges import extract_edge_profiles
-    from napari_edgecme.core.metrics import true_profile_derivatives
+    from napari_edgecme.core.metrics import profile_fidelity, true_profile_derivatives
     from napari_edgecme.core.photometry import to_luminance
 
     estimate.EP_MAX_MISFIT = math.inf  # in this worker; the table applies the shipped gate
@@ -83,11 +76,10 @@ def run_case(case: dict, suite: str) -> dict:
     row["n_profiles"] = len(measured)
     if len(measured) == 0:
         return {**row, "error": measured.reason}
-    d = np.asarray(measured.derivatives, np.float64)
+    ncc, _ = profile_fidelity(measured, study.truth)  # as the suites count faithful ones
+    row["false_share"] = float(np.mean(ncc < FAITHFUL_NCC))
     true = true_profile_derivatives(measured, study.truth)
-    true /= np.maximum(true.sum(1, keepdims=True), 1e-300)  # each row sums to one, as d
-    fidelity = ((d - true) ** 2).sum(1) / np.maximum((d ** 2).sum(1), 1e-300)
-    row["false_share"] = float(np.mean(fidelity > FALSE_MISFIT))
+    true /= np.maximum(true.sum(1, keepdims=True), 1e-300)  # each row sums to one, as dE
     oracle = copy.copy(measured)
     oracle.derivatives = true.astype(measured.derivatives.dtype)
     row["measured"] = _estimate_and_score(study, measured)

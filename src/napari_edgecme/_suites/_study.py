@@ -43,15 +43,16 @@ class StudyCase(NamedTuple):
         return {"name": case["name"], "category": case["category"],
                 "blurred": aligned_scores(self.blurred, self.sharp, rotation=self.rotation)[0]}
 
-    def estimate(self, method: str):
+    def estimate(self, method: str, profiles=None):
         """``estimate_motion`` of ``method`` told what the suites tell it, seed 0, its
-        warnings silenced; a refusal raises its ``ValueError``."""
+        warnings silenced; a refusal raises its ``ValueError``. ``profiles``
+        (EdgeProfiles): used instead of extracting them."""
         from ..core import estimate
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return estimate.estimate_motion(self.blurred, method, self.model, self.max_blur,
-                                            self.focal_px, rng=0)
+                                            self.focal_px, profiles=profiles, rng=0)
 
 
 def load_study_case(case: dict, suite: str) -> StudyCase:
